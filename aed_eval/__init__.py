@@ -1,0 +1,1 @@
+"""AED evaluation protocol and command line."""

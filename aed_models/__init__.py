@@ -1,0 +1,1 @@
+"""AED learners: policies and detectors."""

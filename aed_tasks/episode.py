@@ -1,0 +1,56 @@
+"""One episode as the expert (or a policy) produced it, in memory.
+
+Arrays follow ManiSkill's trajectory convention: T actions and per-step arrays (success,
+fail, stage, error_label) describe the state *after* each action; observations have T + 1
+entries (the reset frame first). `frame_labels()` gives the label of every frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+ROLES = ("demo", "agent_success", "agent_failure", "policy_rollout")
+
+
+@dataclass
+class Episode:
+    env_id: str
+    task: str
+    split: str
+    env_index: int
+    seed: int
+    demonstrator: bool
+    control_mode: str
+    actions: np.ndarray  # (T, 4) float32
+    success: np.ndarray  # (T,) bool
+    fail: np.ndarray  # (T,) bool
+    stage: np.ndarray  # (T,) int16
+    error_label: np.ndarray  # (T,) uint8: 1 from the intervention on
+    error_kind: str | None = None
+    error_onset: int | None = None  # index of the first intervened action
+    rgb: dict[str, np.ndarray] = field(default_factory=dict)  # camera -> (T + 1, H, W, 3) uint8
+    depth: dict[str, np.ndarray] = field(default_factory=dict)  # camera -> (T + 1, H, W, 1) int16 mm
+    expert_speed: float = 0.0
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    @property
+    def succeeded(self) -> bool:
+        return bool(len(self.success) and self.success[-1])
+
+    @property
+    def failed_irrecoverably(self) -> bool:
+        return bool(len(self.fail) and self.fail[-1])
+
+    def frame_labels(self) -> np.ndarray:
+        """(T + 1,) labels of the frames: the reset frame is normal, frame t + 1 follows action t."""
+        return np.concatenate([[0], self.error_label]).astype(np.uint8)
+
+    @property
+    def role(self) -> str:
+        if self.demonstrator:
+            return "demo"
+        return "agent_failure" if self.error_kind is not None else "agent_success"

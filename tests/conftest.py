@@ -1,0 +1,30 @@
+"""Shared fixtures: one env per registered id per session (gym.make costs seconds)."""
+
+from __future__ import annotations
+
+import logging
+
+import gymnasium as gym
+import pytest
+
+import aed_tasks
+
+ALL_IDS = aed_tasks.registered_ids()
+ALL_TASKS = sorted(aed_tasks.TASKS)
+
+logging.getLogger("mani_skill").setLevel(logging.ERROR)
+
+
+@pytest.fixture(scope="module")
+def make_env():
+    """A factory that closes what it made at the end of the module."""
+    made = []
+
+    def _make(env_id: str, **kwargs):
+        env = gym.make(env_id, **kwargs)
+        made.append(env)
+        return env
+
+    yield _make
+    for env in made:
+        env.close()
