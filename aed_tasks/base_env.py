@@ -11,6 +11,7 @@ from __future__ import annotations
 from functools import cache
 from typing import TYPE_CHECKING, Any, ClassVar
 
+import gymnasium as gym
 import numpy as np
 import sapien
 import torch
@@ -152,6 +153,8 @@ class AEDBaseEnv(BaseEnv):
             self.catalogue[index]
             self._requested_env_index = index
             options["reconfigure"] = True
+        if seed is None or isinstance(seed, int):
+            gym.Env.reset(self, seed=seed)  # Gymnasium's convention: seed `self.np_random` too
         return super().reset(seed=seed, options=options)
 
     def _choose_environment(self) -> EnvironmentSpec:
