@@ -70,6 +70,9 @@ class AEDBaseEnv(BaseEnv):
     catalogue_sizes: ClassVar[dict[str, int]] = {}
     num_stages: ClassVar[int] = 1
     error_kinds: ClassVar[tuple[str, ...]] = ()
+    # errors after which the clean script, re-run from the current state, still succeeds:
+    # the failed first attempts of sub-optimal demonstrations
+    recoverable_errors: ClassVar[tuple[str, ...]] = ()
     num_env_distractors: ClassVar[int] = 0
     max_episode_steps: ClassVar[int] = 200
 

@@ -33,6 +33,7 @@ class Episode:
     rgb: dict[str, np.ndarray] = field(default_factory=dict)  # camera -> (T + 1, H, W, 3) uint8
     depth: dict[str, np.ndarray] = field(default_factory=dict)  # camera -> (T + 1, H, W, 1) int16 mm
     expert_speed: float = 0.0
+    suboptimal: bool = False  # a failed first attempt, then success (demonstration quality)
 
     def __len__(self) -> int:
         return len(self.actions)

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import sapien
 
 from aed_tasks.episode import Episode
 
@@ -172,26 +171,41 @@ def expert_speed(rng: np.random.Generator, demonstrator: bool) -> float:
     return float(rng.uniform(0.016, 0.024) if demonstrator else rng.uniform(0.010, 0.016))
 
 
-def solve(env: Any, seed: int, error: ErrorSpec | None = None, env_index: int | None = None) -> Episode:
+def solve(
+    env: Any, seed: int, error: ErrorSpec | None = None, env_index: int | None = None, suboptimal: bool = False
+) -> Episode:
     """Run the task's expert for one episode (optionally with an injected error).
 
     `env` is an AED env made with `gym.make` (any wrappers, e.g. `RecordEpisode`, see the
-    same steps). The episode is reset with `seed` (and `env_index`, if given).
+    same steps). The episode is reset with `seed` (and `env_index`, if given). With
+    `suboptimal=True` the expert first fails in one of the task's recoverable ways, then
+    starts over from where it is and succeeds (the demonstration-quality experiment).
     """
     base = env.unwrapped
     if error is not None and error.kind not in base.error_kinds:
         raise ValueError(f"unknown error kind {error.kind!r} for {base.task_name}; known: {list(base.error_kinds)}")
+    if suboptimal and (error is not None or not base.recoverable_errors):
+        raise ValueError(f"suboptimal episodes of {base.task_name} need error=None and recoverable_errors")
     options = {} if env_index is None else {"env_index": env_index}
     obs, _ = env.reset(seed=seed, options=options)
-    rng = np.random.default_rng([seed, 0 if error is None else 1 + base.error_kinds.index(error.kind)])
+    stream = 0 if error is None else 1 + base.error_kinds.index(error.kind)
+    rng = np.random.default_rng([seed, stream, int(suboptimal)])
     expert = ScriptedExpert(env, rng, expert_speed(rng, base.demonstrator))
     try:
-        base.expert_script(expert, error)
+        if suboptimal:
+            first_try = ErrorSpec(str(rng.choice(base.recoverable_errors)))
+            base.expert_script(expert, first_try)
+            expert.onset = None  # a demonstration: the failed attempt is part of it, not an error
+            base.expert_script(expert, None)
+        else:
+            base.expert_script(expert, error)
     except EpisodeOver:
         pass
     if error is not None and expert.onset is None:
         raise RuntimeError(f"{base.task_name} script never marked the onset of error {error.kind!r}")
-    return _episode(base, seed, error, expert, obs)
+    episode = _episode(base, seed, error, expert, obs)
+    episode.suboptimal = suboptimal
+    return episode
 
 
 def _episode(base: Any, seed: int, error: ErrorSpec | None, expert: ScriptedExpert, first_obs: Any) -> Episode:
@@ -218,7 +232,3 @@ def _episode(base: Any, seed: int, error: ErrorSpec | None, expert: ScriptedExpe
         error_kind=None if error is None else error.kind, error_onset=expert.onset,
         rgb=rgb, depth=depth, expert_speed=expert.speed,
     )  # fmt: skip
-
-
-def pose(p: np.ndarray, q: np.ndarray | None = None) -> sapien.Pose:
-    return sapien.Pose(p=np.asarray(p, dtype=np.float32), q=q if q is not None else [1, 0, 0, 0])

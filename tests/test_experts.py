@@ -37,3 +37,13 @@ def test_unknown_error_kind_is_named(make_env):
     env = make_env("AED-PickPlace-base", obs_mode="state")
     with pytest.raises(ValueError, match="unknown error kind 'juggle'"):
         solve(env, seed=0, error=ErrorSpec("juggle"))
+
+
+@pytest.mark.parametrize("task", [t for t in ALL_TASKS if aed_tasks.get_task(t).recoverable_errors])
+def test_suboptimal_demonstration_fails_first_then_succeeds(task, make_env):
+    env = make_env(f"AED-{task}-base", obs_mode="state", demonstrator=True)
+    clean = solve(env, seed=5, env_index=0)
+    retried = solve(env, seed=5, env_index=0, suboptimal=True)
+    assert retried.succeeded and retried.suboptimal and retried.role == "demo"
+    assert not retried.error_label.any()
+    assert len(retried) > len(clean)

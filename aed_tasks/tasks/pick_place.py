@@ -47,6 +47,7 @@ class PickPlaceEnv(AEDBaseEnv):
     catalogue_sizes = {"base": 90, "novel": 42}
     num_stages = 2
     error_kinds = ("no_grasp", "miss_place", "wrong_bowl")
+    recoverable_errors = ("no_grasp", "miss_place")
     max_episode_steps = 250
 
     @classmethod
