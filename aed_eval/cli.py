@@ -11,12 +11,13 @@ logger = logging.getLogger("aed")
 
 
 def _commands() -> dict[str, Callable[..., Any]]:
-    from aed_eval import doctor, render
+    from aed_eval import demo, doctor, render
 
     return {
         "doctor": doctor.doctor,
         "envs": doctor.list_envs,
         "render": render.render_envs,
+        "demo": demo.demo,
     }
 
 
@@ -25,6 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     import tyro
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("mani_skill").setLevel(logging.ERROR)  # e.g. "no CUDA device" on CPU machines
     result = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="aed")
     return result if isinstance(result, int) else 0
 

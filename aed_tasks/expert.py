@@ -52,7 +52,9 @@ class ScriptedExpert:
     """
 
     def __init__(self, env: Any, rng: np.random.Generator, speed: float):
-        from mani_skill.examples.motionplanning.panda.motionplanner import PandaArmMotionPlanningSolver
+        from mani_skill.examples.motionplanning.panda.motionplanner import (
+            PandaArmMotionPlanningSolver,
+        )
 
         self.env = env
         self.base = env.unwrapped

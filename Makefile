@@ -1,0 +1,17 @@
+# The two commands of the README: `make demo` (the main job) and `make test`.
+# Each runs the set-up first; it is idempotent and takes about a second when done.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+
+.PHONY: setup demo test lint
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	$(VENV)/bin/aed demo
+
+test: setup
+	$(PY) -m pytest -q -p no:cacheprovider
+
+lint: setup
+	$(VENV)/bin/ruff check .
