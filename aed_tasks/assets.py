@@ -7,7 +7,7 @@ this module names them and loads them (cached, so a reconfiguring reset stays ch
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 ASSET_DIR = Path(__file__).resolve().parent.parent / "assets"
@@ -77,6 +77,24 @@ MESH_PROFILES: dict[str, dict] = {
     "bottle": {"outline": [(0, 0), (0.5, 0), (0.5, 0.6), (0.2, 0.8), (0.2, 1), (0, 1)]},
     "cone": {"outline": [(0, 0), (0.5, 0), (0, 1)]},
     "spindle": {"outline": [(0, 0), (0.2, 0), (0.5, 0.5), (0.2, 1), (0, 1)]},
+    # push buttons (Press Button): polygonal prisms of unit height
+    "button_housing_hex": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)], "sections": 6},
+    "button_cap_octagon": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)], "sections": 8},
+    # glasses, water drops and coasters (Move Glass Cup); a glass's collision follows its outer wall
+    "glass_tumbler": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0.45, 1), (0.45, 0.1), (0, 0.1)]},
+    "glass_tapered": {"outline": [(0, 0), (0.41, 0), (0.5, 1), (0.45, 1), (0.365, 0.1), (0, 0.1)]},
+    "glass_faceted": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0.45, 1), (0.45, 0.12), (0, 0.12)], "sections": 8},
+    "glass_flared": {
+        "outline": [(0, 0), (0.43, 0), (0.43, 0.55), (0.5, 1), (0.45, 1), (0.38, 0.55), (0.38, 0.1), (0, 0.1)]
+    },
+    "glass_water_drop": {
+        "outline": [(0, 0), (0.354, 0.146), (0.5, 0.5), (0.354, 0.854), (0, 1)], "sections": 8
+    },
+    "coaster_hexagon": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)], "sections": 6},
+    "coaster_oval": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)]},
+    # products (Factory Packing, novel split): a hexagonal prism and a necked jar
+    "product_hexprism": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)], "sections": 6},
+    "product_jar": {"outline": [(0, 0), (0.5, 0), (0.5, 0.72), (0.36, 0.84), (0.36, 1), (0, 1)], "sections": 16},
 }
 for _profile in MESH_PROFILES.values():
     _profile.setdefault("sections", 24)
@@ -102,7 +120,7 @@ def mesh_path(name: str) -> Path:
     return path
 
 
-@lru_cache(maxsize=None)
+@cache
 def load_texture(name: str):
     """A SAPIEN texture, loaded once per process (textures are immutable and shared)."""
     import sapien

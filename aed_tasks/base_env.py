@@ -150,11 +150,19 @@ class AEDBaseEnv(BaseEnv):
         return CameraConfig("render_camera", sapien_utils.look_at(*CAMERAS["front"]), 640, 480, np.deg2rad(62), 0.01, 5)
 
     def reset(self, seed: int | None = None, options: dict | None = None):
+        """ManiSkill's reset, plus `options["env_index"]` (switch environment).
+
+        A reset with an explicit seed rebuilds the scene (a few tenths of a second), so that a
+        seed gives the same episode bit for bit: PhysX keeps contact caches across a plain
+        reset, and an episode that ended in contact would nudge the next one.
+        """
         options = dict(options or {})
         if "env_index" in options:
             index = options.pop("env_index")
             self.catalogue[index]
             self._requested_env_index = index
+            options["reconfigure"] = True
+        if isinstance(seed, int):
             options["reconfigure"] = True
         if seed is None or isinstance(seed, int):
             gym.Env.reset(self, seed=seed)  # Gymnasium's convention: seed `self.np_random` too

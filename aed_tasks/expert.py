@@ -1,8 +1,11 @@
 """Scripted, motion-planned experts and error injection.
 
-Every segment of an expert is planned with ManiSkill's mplib motion planner (screw motion,
-RRT-Connect when the screw is blocked) and then tracked in the agent's own action space,
-`pd_ee_delta_pos`, so that the recorded actions are exactly what a policy must output.
+Every segment of an expert is planned with ManiSkill's mplib motion planner (a screw motion,
+checked for joint limits and self-collision) and then tracked in the agent's own action
+space, `pd_ee_delta_pos`, so that the recorded actions are exactly what a policy must output.
+Where the screw is blocked, the expert follows the straight segment and lets the controller's
+IK find the way; it never falls back to RRT, whose unseeded sampling (OMPL, pinocchio) would
+make episodes differ between runs of the same seed.
 With an `ErrorSpec`, the task's script deviates at the critical moment (grasp, release,
 push...) and calls `mark_error()`: labels are 0 before that step and 1 from it on.
 """
@@ -28,10 +31,6 @@ class ErrorSpec:
     """A behaviour error to inject: `kind` is one of the task's `error_kinds`."""
 
     kind: str
-
-
-class ExpertFailure(RuntimeError):
-    """The expert could not plan a segment (unreachable target, blocked path)."""
 
 
 class EpisodeOver(Exception):
@@ -105,15 +104,16 @@ class ScriptedExpert:
         self.terminated = bool(_to_numpy(terminated).reshape(-1)[0] or _to_numpy(truncated).reshape(-1)[0])
 
     def plan(self, target: np.ndarray) -> np.ndarray:
-        """TCP positions (N, 3) along an mplib plan from here to `target` (top-down gripper)."""
+        """TCP positions (N, 3) along an mplib screw plan from here to `target` (top-down gripper).
+
+        A blocked screw (a joint limit or self-collision on the way) gives the straight segment.
+        """
         goal = np.concatenate([target, self.orientation])
         qpos = _to_numpy(self.base.agent.robot.get_qpos()[0])
-        dt = self.base.control_timestep
-        result = self.planner.plan_screw(goal, qpos, time_step=dt)
+        result = self.planner.plan_screw(goal, qpos, time_step=self.base.control_timestep)
         if result["status"] != "Success":
-            result = self.planner.plan_qpos_to_pose(goal, qpos, time_step=dt, planning_time=1.0)
-        if result["status"] != "Success":
-            raise ExpertFailure(f"no plan to {np.round(target, 3)}: {result['status']}")
+            logger.debug("screw to %s blocked (%s): straight segment", np.round(target, 3), result["status"])
+            return np.asarray([self.tcp, target])
         model, link = self.planner.pinocchio_model, self.planner.move_group_link_id
         origin = _to_numpy(self.base.agent.robot.pose.p[0])
         path = []

@@ -40,12 +40,14 @@ def build_room(scene: ManiSkillScene, spec: EnvironmentSpec) -> Actor:
         pose=sapien.Pose(p=[0, 0, -TABLE_HEIGHT]), half_size=[4, 4], mat=render_material(spec.floor), texture_repeat=[2, 2]
     )
     floor.add_plane_collision(sapien.Pose(p=[0, 0, -TABLE_HEIGHT], q=[0.7071068, 0, -0.7071068, 0]))
+    floor.initial_pose = sapien.Pose()
     floor.build_static(name="floor")
 
     wall = scene.create_actor_builder()
     wall.add_box_visual(
         pose=sapien.Pose(p=[WALL_X, 0, 0.4]), half_size=[0.02, 3.0, 1.6], material=render_material(spec.wall)
     )
+    wall.initial_pose = sapien.Pose()
     wall.build_static(name="wall")
 
     table = scene.create_actor_builder()
@@ -59,6 +61,7 @@ def build_room(scene: ManiSkillScene, spec: EnvironmentSpec) -> Actor:
         for sy in (-1, 1):
             p = [TABLE_CENTER_X + sx * (TABLE_HALF_SIZE[0] - 0.05), sy * (TABLE_HALF_SIZE[1] - 0.05), -TABLE_THICKNESS - leg_h]
             table.add_box_visual(pose=sapien.Pose(p=p), half_size=[0.025, 0.025, leg_h], material=leg_material)
+    table.initial_pose = sapien.Pose()
     return table.build_static(name="table")
 
 

@@ -5,13 +5,16 @@ error kind runs the same way. Physics only (obs_mode="state"): rendering changes
 about success. Writes JSON and prints a Markdown table.
 
     python scripts/expert_stats.py --tasks PickPlace --seeds 40 --error-seeds 20
+    python scripts/expert_stats.py --workers 2          # every task, two processes
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import multiprocessing
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +24,6 @@ import tyro
 
 import aed_tasks
 from aed_tasks import ErrorSpec, solve
-from aed_tasks.expert import ExpertFailure
 
 logger = logging.getLogger("expert_stats")
 
@@ -36,6 +38,8 @@ class Config:
     """Episodes per error kind."""
     out: Path = Path("runs/expert_stats")
     first_seed: int = 1000
+    workers: int = 1
+    """Tasks measured in parallel processes."""
 
 
 def spread(n: int, size: int) -> list[int]:
@@ -51,13 +55,7 @@ def measure(task: str, kind: str | None, n: int, first_seed: int, envs: dict) ->
     for split, indices in per_split.items():
         for k, env_index in enumerate(indices):
             seed = first_seed + 2 * k + (split == "novel")
-            try:
-                ep = solve(envs[split], seed, ErrorSpec(kind) if kind else None, env_index=env_index)
-            except ExpertFailure as exc:
-                logger.warning("%s %s seed %d env %d: %s", task, kind, seed, env_index, exc)
-                failures.append((split, env_index, seed))
-                outcomes.append(False)
-                continue
+            ep = solve(envs[split], seed, ErrorSpec(kind) if kind else None, env_index=env_index)
             outcomes.append(ep.succeeded)
             lengths.append(len(ep))
             if kind is not None:
@@ -76,25 +74,33 @@ def measure(task: str, kind: str | None, n: int, first_seed: int, envs: dict) ->
     }  # fmt: skip
 
 
-def main(cfg: Config) -> None:
+def measure_task(task: str, cfg: Config) -> list[dict]:
+    """Clean and every error kind of one task; writes `<out>/<task>.json`."""
     logging.basicConfig(level=logging.INFO)
     logging.getLogger("mani_skill").setLevel(logging.ERROR)
+    cls = aed_tasks.get_task(task)
+    envs = {s: gym.make(aed_tasks.env_id(task, s), obs_mode="state") for s in ("base", "novel")}
+    results = [measure(task, None, cfg.seeds, cfg.first_seed, envs)]
+    results += [measure(task, kind, cfg.error_seeds, cfg.first_seed, envs) for kind in cls.error_kinds]
+    for env in envs.values():
+        env.close()
+    (cfg.out / f"{task}.json").write_text(json.dumps({"task": task, "results": results}, indent=2))
+    logger.info("%s done", task)
+    return results
+
+
+def main(cfg: Config) -> None:
+    logging.basicConfig(level=logging.INFO)
     tasks = cfg.tasks or tuple(sorted(aed_tasks.TASKS))
     cfg.out.mkdir(parents=True, exist_ok=True)
+    with ProcessPoolExecutor(cfg.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        per_task = list(pool.map(measure_task, tasks, [cfg] * len(tasks)))
     rows = []
-    for task in tasks:
-        cls = aed_tasks.get_task(task)
-        envs = {s: gym.make(aed_tasks.env_id(task, s), obs_mode="state") for s in ("base", "novel")}
-        results = [measure(task, None, cfg.seeds, cfg.first_seed, envs)]
-        results += [measure(task, kind, cfg.error_seeds, cfg.first_seed, envs) for kind in cls.error_kinds]
-        for env in envs.values():
-            env.close()
-        (cfg.out / f"{task}.json").write_text(json.dumps({"task": task, "results": results}, indent=2))
+    for task, results in zip(tasks, per_task, strict=True):
         for r in results:
             rate = r["success_rate"] if r["kind"] == "clean" else 1 - r["success_rate"]
             labels = "" if r["labels_switch_at_onset"] is None else f"{r['labels_switch_at_onset']:.0%}"
             rows.append(f"| {task} | {r['kind']} | {r['episodes']} | {rate:.0%} | {labels} | {r['mean_length']:.0f} | {r['seconds_per_episode']:.1f} |")
-            logger.info(rows[-1])
     table = "| task | episodes of | n | expert success (clean) / failure (error) | labels at onset | mean steps | s/episode |\n"
     table += "|---|---|---|---|---|---|---|\n" + "\n".join(rows)
     (cfg.out / "expert_stats.md").write_text(table + "\n")
