@@ -32,6 +32,7 @@ from aed_tasks.catalogue import (
     sample_distractors,
     sample_lighting,
 )
+from aed_tasks.rendering import camera_shader_config, use_minimal_picture_formats
 from aed_tasks.scene import add_lights, build_distractor, build_room, rotation_z
 
 if TYPE_CHECKING:
@@ -140,10 +141,18 @@ class AEDBaseEnv(BaseEnv):
     # --- scene ----------------------------------------------------------------------------
     @property
     def _default_sensor_configs(self) -> list[CameraConfig]:
+        shader = camera_shader_config()  # `minimal` with a shadow filter cheap on CPUs
         return [
-            CameraConfig(name, sapien_utils.look_at(*CAMERAS[name]), IMAGE_WIDTH, IMAGE_HEIGHT, np.deg2rad(62), 0.01, 5)
+            CameraConfig(
+                name, sapien_utils.look_at(*CAMERAS[name]), IMAGE_WIDTH, IMAGE_HEIGHT, np.deg2rad(62), 0.01, 5,
+                shader_config=shader,
+            )
             for name in self.camera_names
         ]
+
+    def _setup_sensors(self, options: dict) -> None:
+        use_minimal_picture_formats()  # ManiSkill sets them only for packs named "minimal"
+        super()._setup_sensors(options)
 
     @property
     def _default_human_render_camera_configs(self) -> CameraConfig:

@@ -109,3 +109,20 @@ def test_demonstrator_looks_unlike_the_agent(make_env):
     b = expert.reset(seed=0)[0]["sensor_data"]["front"]["rgb"][0].numpy().astype(int)
     changed = np.abs(a - b).sum(-1) > 60
     assert changed.mean() > 0.01, "the demonstrator's robot is not recoloured"
+
+
+def test_cameras_render_with_the_cheap_shadow_filter(make_env, tmp_path, monkeypatch):
+    from aed_tasks import rendering
+
+    env = make_env("AED-PressButton-base", env_index=0)
+    env.reset(seed=0)
+    camera = env.unwrapped._sensors["front"]
+    assert camera.config.shader_config.shader_pack == str(rendering.shader_pack_dir())
+    assert "PCF_SampleCount = 4;" in (rendering.shader_pack_dir().parent / "common" / "shadow.glsl").read_text()
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))  # a fresh cache is derived from SAPIEN's pack
+    rendering.shader_pack_dir.cache_clear()
+    try:
+        fresh = rendering.shader_pack_dir()
+        assert fresh.is_relative_to(tmp_path) and (fresh / "gbuffer.frag").exists()
+    finally:
+        rendering.shader_pack_dir.cache_clear()
