@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -11,23 +12,38 @@ logger = logging.getLogger("aed")
 
 
 def _commands() -> dict[str, Callable[..., Any]]:
-    from aed_eval import demo, doctor, render
+    from aed_eval import collect, data_info, demo, doctor, render
 
     return {
         "doctor": doctor.doctor,
         "envs": doctor.list_envs,
         "render": render.render_envs,
+        "collect": collect.collect,
+        "data-info": data_info.data_info,
         "demo": demo.demo,
     }
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the `aed` console script."""
+    """Entry point of the `aed` console script.
+
+    Bad input (an unknown task, a wrong value, a corrupt or foreign file) ends with one line
+    naming the problem and exit status 2; `AED_DEBUG=1` shows the traceback instead.
+    """
     import tyro
+
+    from aed_eval.storage import CollectionError
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("mani_skill").setLevel(logging.ERROR)  # e.g. "no CUDA device" on CPU machines
-    result = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="aed")
+    try:
+        result = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="aed")
+    except (ValueError, KeyError, IndexError, FileNotFoundError, CollectionError) as e:
+        if os.environ.get("AED_DEBUG"):
+            raise
+        message = e.args[0] if isinstance(e, KeyError) and e.args else e
+        logger.error("%s", message)
+        return 2
     return result if isinstance(result, int) else 0
 
 

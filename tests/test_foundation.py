@@ -61,3 +61,11 @@ def test_ruff_is_clean():
     assert ruff, "ruff is a dev dependency: pip install -e .[dev]"
     result = subprocess.run([ruff, "check", "."], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stdout
+
+
+def test_bad_input_is_one_named_error_line():
+    result = subprocess.run([AED, "collect", "--task", "Juggle"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "unknown task 'Juggle'" in result.stderr
+    assert "Traceback" not in result.stderr
+    result = subprocess.run([AED, "data-info", "/nonexistent/aed"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "/nonexistent/aed: no such collection folder" in result.stderr

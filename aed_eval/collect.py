@@ -1,0 +1,529 @@
+"""`aed collect`: the protocol's episodes, recorded by the scripted expert in every environment.
+
+For a task and split, in each chosen environment of the catalogue:
+
+- `demo`: expert demonstrations (the demonstrator's appearance, length-variant speed profile);
+- `demo` with `suboptimal`: a failed first attempt, then success (demonstration quality);
+- `agent_success`: the agent's appearance, the clean expert;
+- `agent_failure`: the agent's appearance, the expert intervened at the critical moment,
+  the task's error kinds rotated so that every kind is represented evenly.
+
+Work is cut into shards of at most `shard_size` episodes of one (environment, role); each is
+written atomically (see `aed_eval.storage`) and its seeds derive only from
+(seed, task, split, environment, role, episode index, attempt), so the result is the same
+whatever the number of workers, and an interrupted run resumes by redoing only the shards
+that were never committed. Workers are local processes, or Ray actors on a cluster (`ray`
+extra; the output folder must then be on a filesystem every node sees).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import tyro
+
+from aed_eval import storage
+
+logger = logging.getLogger(__name__)
+
+GROUPS = ("demo", "demo_suboptimal", "agent_success", "agent_failure")
+# Per environment. Paper: 5 demonstrations; every training iteration samples 10 successes +
+# 10 failures (detectors) or 20 successes (SVDDED) from one environment.
+PROFILES: dict[str, dict[str, int | None]] = {
+    "paper": {"num_envs": None, "num_demos": 5, "num_successes": 20, "num_failures": 20},
+    "mini": {"num_envs": 4, "num_demos": 5, "num_successes": 10, "num_failures": 10},
+}
+IDENTITY = ("task", "split", "seed", "obs_mode", "cameras", "shard_size")  # must match to resume
+
+
+@dataclass
+class CollectConfig:
+    """What `aed collect` records, and how.
+
+    Counts are per environment; a count left unset takes the profile's value (the novel
+    split records demonstrations only, unless asked otherwise).
+    """
+
+    task: str = "PickPlace"
+    """Task name (e.g. PickPlace)."""
+    split: Literal["base", "novel"] = "base"
+    """Catalogue split."""
+    out: Path | None = None
+    """Output folder (default: runs/<task>/data/<split>). Re-running resumes into it."""
+    profile: Literal["paper", "mini"] = "paper"
+    """paper: every environment, 5 demos, 20 successes, 20 failures; mini: 4 environments, 5/10/10."""
+    envs: tuple[int, ...] = ()
+    """Explicit environment indices (default: the first `num_envs`)."""
+    num_envs: int | None = None
+    """Use the first N environments of the catalogue (default: the profile's; paper: all)."""
+    num_demos: int | None = None
+    """Expert demonstrations per environment."""
+    num_successes: int | None = None
+    """Agent successes per environment."""
+    num_failures: int | None = None
+    """Agent failures per environment (error kinds rotated evenly)."""
+    num_suboptimal_demos: int = 0
+    """Sub-optimal demonstrations per environment (failed first attempt, then success)."""
+    shard_size: int = 10
+    """Episodes per shard file (the unit of atomic writes and of resuming)."""
+    workers: int = 1
+    """Parallel workers (1: in this process)."""
+    executor: Literal["local", "ray"] = "local"
+    """local: a process pool on this machine; ray: Ray actors (pip install aed-toolkit[ray])."""
+    ray_address: str | None = None
+    """Ray cluster address (None: start or join a local Ray)."""
+    obs_mode: str = "rgbd"
+    """ManiSkill observation mode recorded (training needs rgbd)."""
+    cameras: tuple[str, ...] = ("front",)
+    """Cameras rendered and recorded (front, front_shift)."""
+    compression: Literal["gzip", "lzf"] = "gzip"
+    """HDF5 filter of images: gzip is smaller, lzf faster."""
+    compression_level: int = 4
+    """gzip level, 0-9."""
+    record_env_states: bool = True
+    """Record env states (replay with --use-env-states); costs little."""
+    seed: int = 0
+    """Root seed; every episode's seed derives from it deterministically."""
+    max_attempts: int = 5
+    """Tries per episode (new seed each) before the expert is declared unable."""
+    progress: bool = True
+    """Show a progress bar."""
+
+    def __post_init__(self) -> None:
+        import aed_tasks
+        from aed_tasks.base_env import CAMERAS
+
+        try:
+            task_cls = aed_tasks.get_task(self.task)
+        except KeyError as e:
+            raise ValueError(f"task={self.task!r}: {e.args[0]}") from None
+        self.task = task_cls.task_name
+        if self.split not in task_cls.catalogue_sizes:
+            raise ValueError(f"split={self.split!r}: {self.task} has splits {sorted(task_cls.catalogue_sizes)}")
+        if self.profile not in PROFILES:
+            raise ValueError(f"profile={self.profile!r}: known {sorted(PROFILES)}")
+        size = task_cls.catalogue_sizes[self.split]
+        if self.envs and self.num_envs is not None:
+            raise ValueError(f"envs={self.envs} and num_envs={self.num_envs}: give one of them")
+        self._resolve_counts()
+        for name in ("num_demos", "num_successes", "num_failures", "num_suboptimal_demos"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}={getattr(self, name)}: must be >= 0")
+        bad = [i for i in self.envs if not 0 <= i < size]
+        if bad:
+            raise ValueError(f"envs={self.envs}: {bad} outside {self.task}-{self.split}'s 0..{size - 1}")
+        if len(set(self.envs)) != len(self.envs):
+            raise ValueError(f"envs={self.envs}: duplicates")
+        if self.num_envs is not None and not 1 <= self.num_envs <= size:
+            raise ValueError(f"num_envs={self.num_envs}: must be in 1..{size} ({self.task}-{self.split})")
+        if self.num_failures and not task_cls.error_kinds:
+            raise ValueError(f"num_failures={self.num_failures}: {self.task} declares no error kinds")
+        if self.num_suboptimal_demos and not task_cls.recoverable_errors:
+            raise ValueError(f"num_suboptimal_demos={self.num_suboptimal_demos}: {self.task} has no recoverable errors")
+        for name in ("shard_size", "workers", "max_attempts"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
+        if not 0 <= self.compression_level <= 9:
+            raise ValueError(f"compression_level={self.compression_level}: must be in 0..9")
+        unknown = sorted(set(self.cameras) - set(CAMERAS))
+        if unknown or not self.cameras:
+            raise ValueError(f"cameras={self.cameras}: unknown {unknown}; known {sorted(CAMERAS)}")
+        if self.executor not in ("local", "ray"):
+            raise ValueError(f"executor={self.executor!r}: local or ray")
+        self.cameras = tuple(self.cameras)
+        self.envs = tuple(int(i) for i in self.envs)
+        if self.out is None:
+            self.out = Path("runs") / self.task / "data" / self.split
+        self.out = Path(self.out)
+
+    def _resolve_counts(self) -> None:
+        profile = PROFILES[self.profile]
+        if self.num_envs is None and not self.envs:
+            self.num_envs = profile["num_envs"]
+        agent_default = 0 if self.split == "novel" else None
+        for name in ("num_demos", "num_successes", "num_failures"):
+            if getattr(self, name) is None:
+                default = profile[name] if name == "num_demos" or agent_default is None else agent_default
+                setattr(self, name, int(default))
+
+    def env_indices(self) -> list[int]:
+        import aed_tasks
+
+        if self.envs:
+            return list(self.envs)
+        size = aed_tasks.get_task(self.task).catalogue_sizes[self.split]
+        return list(range(size if self.num_envs is None else self.num_envs))
+
+    def counts(self) -> dict[str, int]:
+        return {
+            "demo": self.num_demos, "demo_suboptimal": self.num_suboptimal_demos,
+            "agent_success": self.num_successes, "agent_failure": self.num_failures,
+        }  # fmt: skip
+
+    def identity(self) -> dict[str, Any]:
+        return {k: _plain(getattr(self, k)) for k in IDENTITY}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: _plain(v) for k, v in asdict(self).items()}
+
+
+def _plain(x: Any) -> Any:
+    if isinstance(x, Path):
+        return str(x)
+    if isinstance(x, tuple):
+        return list(x)
+    return x
+
+
+# --- shards and seeds --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Shard:
+    """At most `shard_size` consecutive episodes (indices start..start+count-1) of one env and role."""
+
+    task: str
+    split: str
+    env_index: int
+    group: str  # one of GROUPS
+    start: int
+    count: int
+
+    @property
+    def stem(self) -> str:
+        return f"{self.group}_env{self.env_index:03d}_{self.start:04d}"
+
+    @property
+    def role(self) -> str:
+        return "demo" if self.group.startswith("demo") else self.group
+
+    @property
+    def demonstrator(self) -> bool:
+        return self.role == "demo"
+
+    @property
+    def suboptimal(self) -> bool:
+        return self.group == "demo_suboptimal"
+
+    def indices(self) -> range:
+        return range(self.start, self.start + self.count)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def plan_shards(cfg: CollectConfig) -> list[Shard]:
+    """Every shard of the request, environment by environment."""
+    shards = []
+    for env_index in cfg.env_indices():
+        for group, count in cfg.counts().items():
+            for start in range(0, count, cfg.shard_size):
+                n = min(cfg.shard_size, count - start)
+                shards.append(Shard(cfg.task, cfg.split, env_index, group, start, n))
+    return shards
+
+
+def episode_seed(root: int, task: str, split: str, env_index: int, group: str, k: int, attempt: int) -> int:
+    """A 31-bit seed from the episode's identity alone (same on any worker, in any order)."""
+    key = f"{root}/{task}/{split}/{env_index}/{group}/{k}/{attempt}".encode()
+    return int.from_bytes(hashlib.sha256(key).digest()[:4], "little") & 0x7FFFFFFF
+
+
+def error_kind_for(kinds: tuple[str, ...], env_index: int, k: int) -> str:
+    """Rotate the error kinds: per environment, counts differ by at most one; offset by env."""
+    return kinds[(env_index + k) % len(kinds)]
+
+
+# --- one worker --------------------------------------------------------------------------------
+class CollectError(RuntimeError):
+    """The expert could not produce a wanted episode within `max_attempts`."""
+
+
+@dataclass
+class ShardResult:
+    stem: str
+    episodes: int
+    steps: int
+    attempts: int
+    seconds: float
+
+
+class ShardRunner:
+    """Runs shards in one process, keeping one env per appearance (gym.make costs seconds)."""
+
+    def __init__(self, cfg: CollectConfig):
+        self.cfg = cfg
+        self._envs: dict[bool, Any] = {}
+
+    def env(self, demonstrator: bool) -> Any:
+        if demonstrator not in self._envs:
+            import gymnasium as gym
+
+            import aed_tasks
+
+            env = gym.make(
+                aed_tasks.env_id(self.cfg.task, self.cfg.split), demonstrator=demonstrator,
+                obs_mode=self.cfg.obs_mode, cameras=tuple(self.cfg.cameras),
+            )  # fmt: skip
+            self._envs[demonstrator] = storage.make_step_recorder(env, self.cfg.record_env_states)
+        return self._envs[demonstrator]
+
+    def close(self) -> None:
+        for env in self._envs.values():
+            env.close()
+        self._envs.clear()
+
+    def run(self, shard: Shard, out: Path, tick: Callable[[int], None] | None = None) -> ShardResult:
+        """Record the shard's episodes into `out/<stem>.h5.tmp`, then commit it."""
+        start = time.perf_counter()
+        env = self.env(shard.demonstrator)
+        compression = storage.Compression(self.cfg.compression, self.cfg.compression_level)
+        steps = attempts = 0
+        with storage.ShardWriter(Path(out) / f"{shard.stem}.h5", compression) as writer:
+            for k in shard.indices():
+                episode, recorded, attempt = self.episode(env, shard, k)
+                writer.add(episode, recorded, index=k, attempt=attempt, shard=shard.stem)
+                steps += len(episode)
+                attempts += attempt + 1
+                if tick is not None:
+                    tick(1)
+            writer.commit(storage.env_info(env), shard.to_dict())
+        return ShardResult(shard.stem, shard.count, steps, attempts, time.perf_counter() - start)
+
+    def episode(self, env: Any, shard: Shard, k: int) -> tuple[Any, storage.RecordedSteps, int]:
+        """One accepted episode: a retry with the next seed when the expert cannot plan it or
+        its outcome is not the role's (a clean expert that failed, an error that succeeded)."""
+        from aed_tasks.expert import ErrorSpec, solve
+
+        base = env.unwrapped
+        error = None
+        if shard.role == "agent_failure":
+            error = ErrorSpec(error_kind_for(base.error_kinds, shard.env_index, k))
+        problem = ""
+        for attempt in range(self.cfg.max_attempts):
+            seed = episode_seed(self.cfg.seed, shard.task, shard.split, shard.env_index, shard.group, k, attempt)
+            try:
+                episode = solve(env, seed, error=error, env_index=shard.env_index, suboptimal=shard.suboptimal)
+            except RuntimeError as e:  # e.g. a script that never reached its error's moment
+                problem = f"{type(e).__name__}: {e}"
+            else:
+                recorded = env.take()
+                episode.rgb.clear()  # the recorder holds the frames: free the copy
+                episode.depth.clear()
+                problem = _rejection(episode, shard)
+                if not problem:
+                    return episode, recorded, attempt
+            logger.info("%s episode %d attempt %d (seed %d) rejected: %s", shard.stem, k, attempt, seed, problem)
+        raise CollectError(f"{shard.stem}: episode {k} failed {self.cfg.max_attempts} attempts; last: {problem}")
+
+
+def _rejection(episode: Any, shard: Shard) -> str:
+    """Why the episode does not fit its role ('' when it does)."""
+    if episode.env_index != shard.env_index:
+        return f"ran in environment {episode.env_index}, not {shard.env_index}"
+    if shard.role == "agent_failure":
+        if episode.succeeded:
+            return "the intervened expert still succeeded"
+        if episode.error_onset is None:
+            return "no error onset"
+        return ""
+    if not episode.succeeded:
+        return f"the expert did not succeed (stage {int(episode.stage.max(initial=0))})"
+    return ""
+
+
+# --- the whole collection ----------------------------------------------------------------------
+@dataclass
+class CollectSummary:
+    out: Path
+    planned: int  # shards
+    skipped: int  # already committed
+    results: list[ShardResult] = field(default_factory=list)
+
+    @property
+    def episodes(self) -> int:
+        return sum(r.episodes for r in self.results)
+
+
+def prepare_folder(cfg: CollectConfig, shards: list[Shard]) -> list[Shard]:
+    """Check the folder (manifest, every committed shard) and return the shards still to run.
+
+    A corrupt or foreign file stops here with its name. A committed shard whose content
+    differs from the plan (e.g. another shard size) is an error too, never overwritten.
+    """
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    manifest = storage.read_manifest(out)
+    if manifest is not None:
+        old = manifest.get("identity", {})
+        for key, value in cfg.identity().items():
+            if old.get(key) != value:
+                raise storage.CollectionError(
+                    out / storage.MANIFEST, f"was collected with {key}={old.get(key)!r}, this run asks {value!r}; "
+                    "use another --out or the same setting")  # fmt: skip
+    collection = storage.scan_collection(out)  # validates every shard before anything is written
+    storage.write_json_atomic(out / storage.MANIFEST, {
+        "format": storage.FORMAT, "identity": cfg.identity(), "config": cfg.to_dict(),
+    })  # fmt: skip
+    done = {s.json_path.stem: s for s in collection.shards}
+    planned = {s.stem for s in shards}
+    todo = []
+    for shard in shards:
+        info = done.get(shard.stem)
+        if info is None:
+            todo.append(shard)
+        elif info.shard != shard.to_dict():
+            raise storage.CollectionError(
+                info.json_path, f"holds shard {info.shard}, this run plans {shard.to_dict()}; delete it or "
+                "keep the earlier counts")  # fmt: skip
+    for leftover in collection.temporaries + collection.uncommitted:
+        stem = leftover.name.split(".")[0]
+        if stem in planned:
+            logger.info("removing %s (left by an interrupted run; its shard is redone)", leftover.name)
+            leftover.unlink()
+    extra = sorted(set(done) - planned)
+    if extra:
+        logger.info("%d committed shard(s) in %s are outside this plan and kept", len(extra), out)
+    return todo
+
+
+def run_collection(
+    cfg: CollectConfig,
+    on_shard_done: Callable[[ShardResult], None] | None = None,
+    runner: ShardRunner | None = None,
+) -> CollectSummary:
+    """Record every planned shard that is not committed yet (resume = run again).
+
+    `on_shard_done` is called after each commit; `runner` (workers=1 only) reuses the envs
+    of an earlier call instead of making new ones.
+    """
+    from tqdm.auto import tqdm
+
+    shards = plan_shards(cfg)
+    todo = prepare_folder(cfg, shards)
+    summary = CollectSummary(Path(cfg.out), len(shards), len(shards) - len(todo))
+    total = sum(s.count for s in todo)
+    logger.info("%s-%s: %d shards planned, %d already committed, %d episodes to record in %s",
+                cfg.task, cfg.split, len(shards), summary.skipped, total, cfg.out)  # fmt: skip
+
+    def done(result: ShardResult) -> None:
+        summary.results.append(result)
+        if on_shard_done is not None:
+            on_shard_done(result)
+
+    with tqdm(total=total, unit="ep", desc=f"collect {cfg.task}-{cfg.split}", disable=not cfg.progress,
+              dynamic_ncols=True) as bar:  # fmt: skip
+        if not todo:
+            pass
+        elif cfg.executor == "ray":
+            _execute_ray(cfg, todo, bar, done)
+        elif cfg.workers == 1:
+            _execute_inline(cfg, todo, bar, done, runner)
+        else:
+            _execute_pool(cfg, todo, bar, done)
+    return summary
+
+
+def _execute_inline(
+    cfg: CollectConfig, shards: list[Shard], bar: Any, done: Callable[[ShardResult], None], runner: ShardRunner | None
+) -> None:
+    own = runner is None
+    runner = runner or ShardRunner(cfg)
+    if _env_key(runner.cfg) != _env_key(cfg):
+        raise ValueError(f"runner made for {_env_key(runner.cfg)}, this collection needs {_env_key(cfg)}")
+    runner.cfg = cfg
+    try:
+        for shard in shards:
+            done(runner.run(shard, Path(cfg.out), bar.update))
+    finally:
+        if own:
+            runner.close()
+
+
+def _env_key(cfg: CollectConfig) -> tuple:
+    return cfg.task, cfg.split, cfg.obs_mode, tuple(cfg.cameras), cfg.record_env_states
+
+
+# Local process pool: each worker process keeps its own `ShardRunner` (and envs).
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(cfg: CollectConfig, queue: Any, log_level: int) -> None:
+    logging.basicConfig(level=log_level, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("mani_skill").setLevel(max(log_level, logging.ERROR))
+    _WORKER["runner"] = ShardRunner(cfg)
+    _WORKER["queue"] = queue
+
+
+def _run_in_worker(shard: Shard, out: str) -> ShardResult:
+    queue = _WORKER["queue"]
+    return _WORKER["runner"].run(shard, Path(out), lambda n: queue.put(n))
+
+
+def _execute_pool(cfg: CollectConfig, shards: list[Shard], bar: Any, done: Callable[[ShardResult], None]) -> None:
+    import multiprocessing as mp
+    import queue as queue_lib
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    ctx = mp.get_context("spawn")  # fresh interpreters: no forked renderer state
+    ticks = ctx.Queue()
+    level = logging.getLogger().getEffectiveLevel()
+    workers = min(cfg.workers, len(shards))
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(cfg, ticks, level)) as pool:
+        pending = {pool.submit(_run_in_worker, shard, str(cfg.out)) for shard in shards}
+        try:
+            while pending:
+                finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+                while True:
+                    try:
+                        bar.update(ticks.get_nowait())
+                    except queue_lib.Empty:
+                        break
+                for future in finished:
+                    done(future.result())
+        except BaseException:
+            for future in pending:
+                future.cancel()
+            raise
+
+
+def _execute_ray(cfg: CollectConfig, shards: list[Shard], bar: Any, done: Callable[[ShardResult], None]) -> None:
+    try:
+        import ray
+        from ray.util import ActorPool
+    except ImportError as e:
+        raise ImportError("executor='ray' needs Ray: pip install 'aed-toolkit[ray]'") from e
+
+    if not ray.is_initialized():
+        ray.init(address=cfg.ray_address)
+
+    @ray.remote
+    class RayRunner:
+        def __init__(self, cfg: CollectConfig):
+            self.runner = ShardRunner(cfg)
+
+        def run(self, shard: Shard, out: str) -> ShardResult:
+            return self.runner.run(shard, Path(out))
+
+    actors = [RayRunner.remote(cfg) for _ in range(min(cfg.workers, len(shards)))]
+    pool = ActorPool(actors)
+    for result in pool.map_unordered(lambda actor, shard: actor.run.remote(shard, str(cfg.out)), shards):
+        bar.update(result.episodes)
+        done(result)
+
+
+# --- command -----------------------------------------------------------------------------------
+def collect(cfg: Annotated[CollectConfig, tyro.conf.arg(name="")]) -> int:
+    """Record demonstrations, agent successes and agent failures (resumes into --out)."""
+    logging.getLogger("mani_skill").setLevel(logging.ERROR)  # per-reset warnings would garble the bar
+    start = time.perf_counter()
+    summary = run_collection(cfg)
+    seconds = time.perf_counter() - start
+    steps = sum(r.steps for r in summary.results)
+    print(f"{summary.out}: {summary.planned} shards ({summary.skipped} already there), "
+          f"recorded {summary.episodes} episodes / {steps} steps in {seconds:.1f} s")  # fmt: skip
+    return 0

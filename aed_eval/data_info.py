@@ -1,0 +1,88 @@
+"""`aed data-info PATH`: what a collection folder holds (every shard validated on the way)."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter, defaultdict
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import tyro
+
+from aed_eval import storage
+
+
+def summarize(root: Path, check: storage.Check = "quick") -> dict[str, Any]:
+    """Counts by role, environment and error kind, lengths per role, disk size."""
+    collection = storage.scan_collection(root, check)
+    episodes = collection.episodes()
+    by_role = Counter(e.role + ("_suboptimal" if e.suboptimal else "") for e in episodes)
+    by_env: dict[int, Counter] = defaultdict(Counter)
+    for e in episodes:
+        by_env[e.env_index][e.role] += 1
+    lengths: dict[str, list[int]] = defaultdict(list)
+    for e in episodes:
+        lengths[e.role].append(e.length)
+    frames = sum(e.num_frames for e in episodes)
+    disk = sum(s.num_bytes for s in collection.shards)
+    manifest = storage.read_manifest(root) or {}
+    return {
+        "path": str(root),
+        "config": manifest.get("config"),
+        "shards": len(collection.shards),
+        "episodes": len(episodes),
+        "frames": frames,
+        "tasks": sorted({e.task for e in episodes}),
+        "splits": sorted({e.split for e in episodes}),
+        "by_role": dict(sorted(by_role.items())),
+        "by_env": {str(k): dict(sorted(v.items())) for k, v in sorted(by_env.items())},
+        "error_kinds": dict(sorted(Counter(e.error_kind for e in episodes if e.error_kind).items())),
+        "lengths": {role: _stats(v) for role, v in sorted(lengths.items())},
+        "success_rate": {role: float(np.mean([e.success for e in episodes if e.role == role])) for role in lengths},
+        "disk_bytes": disk,
+        "bytes_per_frame": disk / frames if frames else 0.0,
+        "leftovers": [p.name for p in collection.temporaries + collection.uncommitted],
+    }
+
+
+def _stats(values: list[int]) -> dict[str, float]:
+    a = np.asarray(values)
+    return {"min": int(a.min()), "mean": float(a.mean()), "max": int(a.max())}
+
+
+def format_summary(info: dict[str, Any]) -> str:
+    lines = [
+        f"{info['path']}: {info['episodes']} episodes, {info['frames']} frames in {info['shards']} shards, "
+        f"{info['disk_bytes'] / 2**20:.1f} MiB ({info['bytes_per_frame'] / 1024:.1f} KiB/frame)",
+        f"tasks {', '.join(info['tasks']) or '-'}; splits {', '.join(info['splits']) or '-'}",
+        "by role:        " + _pairs(info["by_role"]),
+        "error kinds:    " + _pairs(info["error_kinds"]),
+        "lengths (steps, min/mean/max):",
+    ]
+    for role, s in info["lengths"].items():
+        lines.append(f"  {role:<16}{s['min']:>5} {s['mean']:7.1f} {s['max']:>5}   success {info['success_rate'][role]:.0%}")
+    roles = sorted({r for counts in info["by_env"].values() for r in counts})
+    lines.append("by environment: " + " ".join(f"{r:>14}" for r in roles))
+    for env, counts in info["by_env"].items():
+        lines.append(f"  env {int(env):<10}" + " ".join(f"{counts.get(r, 0):>14}" for r in roles))
+    if info["leftovers"]:
+        lines.append(f"unfinished (interrupted run; re-run aed collect): {', '.join(info['leftovers'])}")
+    return "\n".join(lines)
+
+
+def _pairs(counts: dict[str, int]) -> str:
+    return ", ".join(f"{k} {v}" for k, v in counts.items()) or "-"
+
+
+def data_info(path: tyro.conf.Positional[Path], check: Literal["quick", "full"] = "quick", as_json: bool = False) -> int:
+    """Summarise a collection: counts by role, environment, error kind; lengths; disk size.
+
+    Args:
+        path: the collection folder (as written by `aed collect`).
+        check: quick (structure and sizes) or full (also every h5's sha256).
+        as_json: print JSON instead of a table.
+    """
+    info = summarize(path, check)
+    print(json.dumps(info, indent=2) if as_json else format_summary(info))
+    return 0

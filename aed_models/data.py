@@ -1,0 +1,340 @@
+"""PyTorch datasets and samplers over collected episodes (see `aed_eval.storage`).
+
+Training follows the paper: an epoch walks through every base environment once, in a
+shuffled order; one iteration takes one environment and samples from it N demonstrations
+plus rollouts (`COMPOSITIONS`: policy 5 demos + 10 successes; detectors 5 + 10 successes +
+10 failures; SVDDED 5 + 20 successes). An environment with fewer episodes than asked is
+sampled with replacement.
+
+Frames are float32 tensors (4, 120, 160) = (C, H, W):
+
+- channels 0-2: RGB / 255, in [0, 1];
+- channel 3: depth in metres / 5 (the cameras' far plane, 5 m), in [0, 1]; 0 where the
+  camera saw nothing. Stored depth is int16 millimetres, so this is `mm / 5000`.
+
+Sequences have different lengths; a group of them is padded to the longest, with
+`lengths` and a boolean `mask` (B, L). Per frame: `labels` (0 normal, 1 from the error on;
+padding 0) and `actions` (the action taken at that frame; the last frame of an episode,
+after which none was taken, and padding get zeros).
+
+Reads are lazy: only the sampled episodes, and only the frames kept, are read; each
+process (DataLoader worker) opens its own HDF5 handles.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections import defaultdict
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset, Sampler
+
+from aed_eval import storage
+from aed_models.augment import RolloutAugment
+
+logger = logging.getLogger(__name__)
+
+DEPTH_SCALE_MM = 5000.0  # the cameras' far plane: depth / 5 m lies in [0, 1]
+
+
+@dataclass(frozen=True)
+class Composition:
+    """How many episodes of each kind one training iteration draws from one environment."""
+
+    num_demos: int
+    num_successes: int
+    num_failures: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("num_demos", "num_successes", "num_failures"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}={getattr(self, name)}: must be >= 0")
+
+
+COMPOSITIONS: dict[str, Composition] = {
+    "policy": Composition(5, 10, 0),
+    "detector": Composition(5, 10, 10),
+    "svdd": Composition(5, 20, 0),
+}
+
+
+def to_frames(rgb: np.ndarray, depth: np.ndarray, out: torch.Tensor | None = None) -> torch.Tensor:
+    """(L, H, W, 3) uint8 RGB + (L, H, W, 1) int16 mm depth -> (L, 4, H, W) float32 (see module doc).
+
+    Writes into `out` when given (one pass over memory: a batch of 25 x 100 frames is 1.9 GB).
+    """
+    if out is None:
+        out = torch.empty((len(rgb), 4, *rgb.shape[1:3]), dtype=torch.float32)
+    out[:, :3].copy_(torch.from_numpy(np.ascontiguousarray(rgb)).permute(0, 3, 1, 2)).mul_(1.0 / 255.0)
+    out[:, 3:].copy_(torch.from_numpy(np.ascontiguousarray(depth)).permute(0, 3, 1, 2))
+    out[:, 3:].mul_(1.0 / DEPTH_SCALE_MM).clamp_(0.0, 1.0)
+    return out
+
+
+def subsample(indices: np.ndarray, max_frames: int | None) -> np.ndarray:
+    """At most `max_frames` of `indices`, evenly spread, first and last kept."""
+    if max_frames is None or len(indices) <= max_frames:
+        return indices
+    keep = np.round(np.linspace(0, len(indices) - 1, max_frames)).astype(np.int64)
+    return indices[keep]
+
+
+@dataclass
+class FrameSequence:
+    """One episode's (possibly augmented / subsampled) frames with aligned per-frame data.
+
+    Images stay as stored (uint8 / int16) until `frames` or `pad_sequences` converts them,
+    so a batch is converted once, straight into its padded tensor.
+    """
+
+    rgb: np.ndarray  # (L, H, W, 3) uint8
+    depth: np.ndarray  # (L, H, W, 1) int16 mm
+    labels: torch.Tensor  # (L,) float32
+    actions: torch.Tensor  # (L, A) float32
+    source: torch.Tensor  # (L,) int64: index of each frame in the episode
+    ref: storage.EpisodeRef
+
+    def __len__(self) -> int:
+        return len(self.rgb)
+
+    @property
+    def frames(self) -> torch.Tensor:
+        """(L, 4, H, W) float32."""
+        return to_frames(self.rgb, self.depth)
+
+
+class EpisodeReader:
+    """Reads frames of episodes lazily, keeping HDF5 handles open per process.
+
+    A handle opened before a DataLoader forked its workers is never reused in them: on a
+    new process id the cache starts empty; pickling drops it too.
+    """
+
+    def __init__(self, camera: str = "front", max_open: int = 64):
+        self.camera = camera
+        self.max_open = max_open
+        self._files: dict[Path, Any] = {}
+        self._pid = os.getpid()
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {**self.__dict__, "_files": {}}
+
+    def _file(self, path: Path) -> Any:
+        import h5py
+
+        if os.getpid() != self._pid:
+            self._files, self._pid = {}, os.getpid()
+        if path not in self._files:
+            if len(self._files) >= self.max_open:
+                self._files.pop(next(iter(self._files))).close()
+            self._files[path] = h5py.File(path, "r")
+        return self._files[path]
+
+    def read(self, ref: storage.EpisodeRef, indices: np.ndarray | None = None) -> FrameSequence:
+        """Frames `indices` (default: all T + 1) of one episode, in that order (repeats allowed)."""
+        h5 = self._file(ref.path)
+        group = h5[ref.traj]
+        if indices is None:
+            indices = np.arange(ref.num_frames, dtype=np.int64)
+        indices = np.asarray(indices, dtype=np.int64)
+        if len(indices) == 0 or indices.min() < 0 or indices.max() >= ref.num_frames:
+            raise IndexError(f"{ref.path.name}/{ref.traj}: frame indices outside 0..{ref.num_frames - 1}")
+        images = group[f"obs/sensor_data/{self.camera}"]
+        unique, inverse = np.unique(indices, return_inverse=True)
+        rgb = _read_rows(images["rgb"], unique)[inverse]
+        depth = _read_rows(images["depth"], unique)[inverse]
+        labels = np.concatenate([[0], group["error_label"][()]]).astype(np.float32)[indices]
+        actions = group["actions"][()].astype(np.float32)
+        actions = np.concatenate([actions, np.zeros((1, actions.shape[1]), np.float32)])[indices]
+        return FrameSequence(rgb, depth, torch.from_numpy(labels), torch.from_numpy(actions), torch.from_numpy(indices), ref)
+
+    def close(self) -> None:
+        for f in self._files.values():
+            f.close()
+        self._files.clear()
+
+
+def _read_rows(dataset: Any, rows: np.ndarray) -> np.ndarray:
+    """dataset[rows] for sorted unique rows: one slab read when dense, point reads when sparse."""
+    lo, hi = int(rows[0]), int(rows[-1]) + 1
+    if len(rows) * 2 >= hi - lo:
+        return dataset[lo:hi][rows - lo]
+    return dataset[rows]
+
+
+def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
+    """Pad to the longest: frames (B, L, 4, H, W), labels (B, L), actions (B, L, A), lengths (B,), mask (B, L)."""
+    if not seqs:
+        return {}
+    lengths = torch.tensor([len(s) for s in seqs], dtype=torch.int64)
+    longest = int(lengths.max())
+    height, width = seqs[0].rgb.shape[1:3]
+    frames = torch.empty((len(seqs), longest, 4, height, width), dtype=torch.float32)
+    labels = torch.zeros(len(seqs), longest)
+    actions = torch.zeros(len(seqs), longest, seqs[0].actions.shape[1])
+    for i, s in enumerate(seqs):
+        n = len(s)
+        to_frames(s.rgb, s.depth, out=frames[i, :n])
+        frames[i, n:] = 0.0
+        labels[i, :n], actions[i, :n] = s.labels, s.actions
+    mask = torch.arange(longest)[None] < lengths[:, None]
+    return {"frames": frames, "labels": labels, "actions": actions, "lengths": lengths, "mask": mask}
+
+
+def load_episodes(
+    roots: Path | str | Sequence[Path | str], split: str | None = "base", check: storage.Check = "quick"
+) -> list[storage.EpisodeRef]:
+    """Every episode of one or several collection folders (validated), optionally one split."""
+    roots = [roots] if isinstance(roots, (str, Path)) else list(roots)
+    refs = [e for root in roots for e in storage.scan_collection(Path(root), check).episodes()]
+    return [e for e in refs if split is None or e.split == split]
+
+
+class EnvironmentIterations(Dataset):
+    """One item = one training iteration: episodes sampled from one environment.
+
+    Items are indexed by `(epoch, position)` (see `EnvironmentSampler`), and every draw is
+    seeded by (seed, epoch, position), so batches are the same with any number of workers.
+    A plain int index means epoch 0.
+
+    Args:
+        episodes: episode refs (see `load_episodes`); environments are grouped by index.
+        composition: episodes per iteration, or a key of `COMPOSITIONS`.
+        camera: which camera's frames.
+        augment: applied to agent rollouts only (demonstrations are never augmented).
+        max_frames: cap each sequence at this many frames (evenly subsampled).
+        demos: which demonstrations to draw: optimal, suboptimal, or any.
+        seed: root seed of the draws.
+    """
+
+    def __init__(
+        self,
+        episodes: Sequence[storage.EpisodeRef],
+        composition: Composition | str = "detector",
+        camera: str = "front",
+        augment: RolloutAugment | None = None,
+        max_frames: int | None = None,
+        demos: Literal["optimal", "suboptimal", "any"] = "optimal",
+        seed: int = 0,
+    ):
+        if isinstance(composition, str):
+            if composition not in COMPOSITIONS:
+                raise ValueError(f"composition={composition!r}: known {sorted(COMPOSITIONS)}")
+            composition = COMPOSITIONS[composition]
+        if max_frames is not None and max_frames < 2:
+            raise ValueError(f"max_frames={max_frames}: must be >= 2 (first and last frame)")
+        self.composition = composition
+        self.augment = augment
+        self.max_frames = max_frames
+        self.seed = seed
+        self.reader = EpisodeReader(camera)
+        self.pools = _group(episodes, demos)
+        self.env_indices = sorted(self.pools)
+        if not self.env_indices:
+            raise ValueError("no episodes: is the collection empty, or of another split?")
+        self._check_pools()
+
+    def _check_pools(self) -> None:
+        wanted = {"demo": self.composition.num_demos, "agent_success": self.composition.num_successes,
+                  "agent_failure": self.composition.num_failures}  # fmt: skip
+        for env_index, pool in self.pools.items():
+            for role, n in wanted.items():
+                if n and not pool[role]:
+                    raise ValueError(f"environment {env_index} has no {role} episodes, the composition asks {n}")
+                if 0 < len(pool[role]) < n:
+                    logger.info("environment %d: %d %s episodes < %d per iteration, sampled with replacement",
+                                env_index, len(pool[role]), role, n)  # fmt: skip
+
+    def __len__(self) -> int:
+        return len(self.env_indices)
+
+    def __getitem__(self, item: int | tuple[int, int]) -> dict[str, Any]:
+        epoch, position = (0, item) if isinstance(item, int) else item
+        env_index = self.env_indices[position]
+        rng = np.random.default_rng([self.seed, epoch, position])
+        pool = self.pools[env_index]
+        demos = [self._sequence(ref, rng, augment=False) for ref in _draw(pool["demo"], self.composition.num_demos, rng)]
+        rollouts = [
+            self._sequence(ref, rng, augment=True)
+            for role, n in (("agent_success", self.composition.num_successes), ("agent_failure", self.composition.num_failures))
+            for ref in _draw(pool[role], n, rng)
+        ]  # fmt: skip
+        batch = {"env_index": env_index, "epoch": epoch, "demos": pad_sequences(demos), "rollouts": pad_sequences(rollouts)}
+        if rollouts:
+            batch["rollouts"]["is_failure"] = torch.tensor([s.ref.role == "agent_failure" for s in rollouts])
+        return batch
+
+    def _sequence(self, ref: storage.EpisodeRef, rng: np.random.Generator, augment: bool) -> FrameSequence:
+        if augment and self.augment is not None:
+            indices = self.augment.indices(ref.num_frames, rng)
+        else:
+            indices = np.arange(ref.num_frames, dtype=np.int64)
+        return self.reader.read(ref, subsample(indices, self.max_frames))
+
+
+def _group(episodes: Sequence[storage.EpisodeRef], demos: str) -> dict[int, dict[str, list[storage.EpisodeRef]]]:
+    if demos not in ("optimal", "suboptimal", "any"):
+        raise ValueError(f"demos={demos!r}: optimal, suboptimal or any")
+    pools: dict[int, dict[str, list[storage.EpisodeRef]]] = defaultdict(lambda: defaultdict(list))
+    for ref in episodes:
+        if ref.role == "demo" and demos != "any" and ref.suboptimal != (demos == "suboptimal"):
+            continue
+        pools[ref.env_index][ref.role].append(ref)
+    return pools
+
+
+def _draw(pool: list[storage.EpisodeRef], n: int, rng: np.random.Generator) -> list[storage.EpisodeRef]:
+    if n == 0:
+        return []
+    picks = rng.choice(len(pool), size=n, replace=len(pool) < n)
+    return [pool[i] for i in picks]
+
+
+class EnvironmentSampler(Sampler):
+    """Yields `(epoch, position)`: every epoch visits each environment once, shuffled by (seed, epoch).
+
+    Use with `DataLoader(dataset, sampler=EnvironmentSampler(len(dataset), epochs), batch_size=None)`.
+    """
+
+    def __init__(self, num_envs: int, epochs: int = 1, seed: int = 0, shuffle: bool = True, start_epoch: int = 0):
+        if num_envs < 1 or epochs < 1:
+            raise ValueError(f"num_envs={num_envs}, epochs={epochs}: both must be >= 1")
+        self.num_envs, self.epochs, self.seed, self.shuffle, self.start_epoch = num_envs, epochs, seed, shuffle, start_epoch
+
+    def __iter__(self) -> Iterator[tuple[int, int]]:
+        for epoch in range(self.start_epoch, self.start_epoch + self.epochs):
+            order = np.arange(self.num_envs)
+            if self.shuffle:
+                order = np.random.default_rng([self.seed, epoch]).permutation(self.num_envs)
+            for position in order:
+                yield epoch, int(position)
+
+    def __len__(self) -> int:
+        return self.num_envs * self.epochs
+
+
+class EpisodeDataset(Dataset):
+    """One item = one whole episode (offline scoring, evaluation), optionally capped in frames."""
+
+    def __init__(self, episodes: Sequence[storage.EpisodeRef], camera: str = "front", max_frames: int | None = None):
+        self.episodes = list(episodes)
+        self.max_frames = max_frames
+        self.reader = EpisodeReader(camera)
+
+    def __len__(self) -> int:
+        return len(self.episodes)
+
+    def __getitem__(self, i: int) -> FrameSequence:
+        ref = self.episodes[i]
+        return self.reader.read(ref, subsample(np.arange(ref.num_frames), self.max_frames))
+
+
+def collate_episodes(seqs: list[FrameSequence]) -> dict[str, Any]:
+    """DataLoader `collate_fn` for `EpisodeDataset`: padded tensors plus the refs."""
+    return {**pad_sequences(seqs), "refs": [s.ref for s in seqs]}
