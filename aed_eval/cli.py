@@ -32,10 +32,10 @@ def main(argv: list[str] | None = None) -> int:
     """
     import tyro
 
+    from aed_eval.logs import setup_logging
     from aed_eval.storage import CollectionError
 
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    logging.getLogger("mani_skill").setLevel(logging.ERROR)  # e.g. "no CUDA device" on CPU machines
+    setup_logging()
     try:
         result = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="aed")
     except (ValueError, KeyError, IndexError, FileNotFoundError, CollectionError) as e:

@@ -29,6 +29,7 @@ from typing import Annotated, Any, Literal
 import tyro
 
 from aed_eval import storage
+from aed_eval.logs import setup_logging
 
 logger = logging.getLogger(__name__)
 
@@ -453,8 +454,7 @@ _WORKER: dict[str, Any] = {}
 
 
 def _init_worker(cfg: CollectConfig, queue: Any, log_level: int) -> None:
-    logging.basicConfig(level=log_level, format="%(levelname)s %(name)s: %(message)s")
-    logging.getLogger("mani_skill").setLevel(max(log_level, logging.ERROR))
+    setup_logging(log_level)
     _WORKER["runner"] = ShardRunner(cfg)
     _WORKER["queue"] = queue
 
@@ -519,7 +519,6 @@ def _execute_ray(cfg: CollectConfig, shards: list[Shard], bar: Any, done: Callab
 # --- command -----------------------------------------------------------------------------------
 def collect(cfg: Annotated[CollectConfig, tyro.conf.arg(name="")]) -> int:
     """Record demonstrations, agent successes and agent failures (resumes into --out)."""
-    logging.getLogger("mani_skill").setLevel(logging.ERROR)  # per-reset warnings would garble the bar
     start = time.perf_counter()
     summary = run_collection(cfg)
     seconds = time.perf_counter() - start

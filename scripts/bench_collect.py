@@ -26,6 +26,7 @@ import h5py
 import tyro
 
 from aed_eval.collect import CollectConfig, Shard, ShardRunner
+from aed_eval.logs import setup_logging
 
 logger = logging.getLogger("bench_collect")
 
@@ -132,8 +133,7 @@ def markdown(result: dict) -> str:
 
 
 def main(cfg: Config) -> None:
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    logging.getLogger("mani_skill").setLevel(logging.ERROR)
+    setup_logging()
     result = bench(cfg)
     cfg.out.mkdir(parents=True, exist_ok=True)
     stem = cfg.out / f"collect_{cfg.task}_{cfg.compression}"

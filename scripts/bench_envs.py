@@ -25,6 +25,7 @@ import numpy as np
 import tyro
 
 import aed_tasks
+from aed_eval.logs import setup_logging
 from aed_tasks import solve
 
 logger = logging.getLogger("bench_envs")
@@ -93,8 +94,7 @@ def bench_pickcube(cfg: Config) -> list[float]:
 
 
 def main(cfg: Config) -> None:
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    logging.getLogger("mani_skill").setLevel(logging.ERROR)
+    setup_logging()
     tasks = cfg.tasks or tuple(sorted(aed_tasks.TASKS))
     reference = bench_pickcube(cfg)
     logger.info("PickCube-v1 (before): %.1f steps/s", statistics.median(reference))

@@ -23,6 +23,7 @@ import numpy as np
 import tyro
 
 import aed_tasks
+from aed_eval.logs import setup_logging
 from aed_tasks import ErrorSpec, solve
 
 logger = logging.getLogger("expert_stats")
@@ -76,8 +77,7 @@ def measure(task: str, kind: str | None, n: int, first_seed: int, envs: dict) ->
 
 def measure_task(task: str, cfg: Config) -> list[dict]:
     """Clean and every error kind of one task; writes `<out>/<task>.json`."""
-    logging.basicConfig(level=logging.INFO)
-    logging.getLogger("mani_skill").setLevel(logging.ERROR)
+    setup_logging()
     cls = aed_tasks.get_task(task)
     envs = {s: gym.make(aed_tasks.env_id(task, s), obs_mode="state") for s in ("base", "novel")}
     results = [measure(task, None, cfg.seeds, cfg.first_seed, envs)]
@@ -90,7 +90,7 @@ def measure_task(task: str, cfg: Config) -> list[dict]:
 
 
 def main(cfg: Config) -> None:
-    logging.basicConfig(level=logging.INFO)
+    setup_logging()
     tasks = cfg.tasks or tuple(sorted(aed_tasks.TASKS))
     cfg.out.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(cfg.workers, mp_context=multiprocessing.get_context("spawn")) as pool:

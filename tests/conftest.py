@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-import logging
-
 import gymnasium as gym
 import pytest
 
 import aed_tasks
+from aed_eval.logs import quiet_maniskill
 
 ALL_IDS = aed_tasks.registered_ids()
 ALL_TASKS = sorted(aed_tasks.TASKS)
 
-logging.getLogger("mani_skill").setLevel(logging.ERROR)
+quiet_maniskill()
 
 
 @pytest.fixture(scope="module")
