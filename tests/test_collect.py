@@ -166,6 +166,16 @@ def test_worker_count_does_not_change_the_episodes(state_collection, tmp_path):
     assert digest(tmp_path) == digest(state_collection)
 
 
+@pytest.mark.slow
+def test_ray_executor_gives_the_same_episodes(state_collection, tmp_path):
+    ray = pytest.importorskip("ray", reason="the optional `ray` extra is not installed")
+    try:
+        run_collection(CollectConfig(**{**STATE_RUN, "executor": "ray", "workers": 2}, out=tmp_path))
+    finally:
+        ray.shutdown()
+    assert digest(tmp_path) == digest(state_collection)
+
+
 def test_rerun_of_a_finished_collection_records_nothing(state_collection):
     before = digest(state_collection)
     summary = run_collection(CollectConfig(**STATE_RUN, out=state_collection))
