@@ -19,6 +19,7 @@ TABLE_CENTER_X = -0.15
 TABLE_THICKNESS = 0.04
 TABLE_HEIGHT = 0.76  # floor at z = -TABLE_HEIGHT
 WALL_X = -1.6  # behind the robot, seen by the front camera
+UPRIGHT = [0.7071068, 0, -0.7071068, 0]  # turns SAPIEN's x-aligned cylinders (and joint axes) to z
 
 
 def render_material(spec: MaterialSpec) -> sapien.render.RenderMaterial:
@@ -39,7 +40,7 @@ def build_room(scene: ManiSkillScene, spec: EnvironmentSpec) -> Actor:
     floor.add_plane_repeated_visual(
         pose=sapien.Pose(p=[0, 0, -TABLE_HEIGHT]), half_size=[4, 4], mat=render_material(spec.floor), texture_repeat=[2, 2]
     )
-    floor.add_plane_collision(sapien.Pose(p=[0, 0, -TABLE_HEIGHT], q=[0.7071068, 0, -0.7071068, 0]))
+    floor.add_plane_collision(sapien.Pose(p=[0, 0, -TABLE_HEIGHT], q=UPRIGHT))
     floor.initial_pose = sapien.Pose()
     floor.build_static(name="floor")
 
@@ -81,7 +82,7 @@ def build_distractor(scene: ManiSkillScene, spec: ObjectSpec, name: str) -> Acto
     builder = scene.create_actor_builder()
     material = render_material(spec.material)
     centre = sapien.Pose(p=[0, 0, height / 2])
-    upright = sapien.Pose(p=[0, 0, height / 2], q=[0.7071068, 0, -0.7071068, 0])  # SAPIEN cylinders lie along x
+    upright = sapien.Pose(p=[0, 0, height / 2], q=UPRIGHT)
     if spec.shape == "box":
         half = [radius, radius * 0.8, height / 2]
         builder.add_box_collision(pose=centre, half_size=half, density=300)

@@ -18,9 +18,8 @@ from mani_skill.utils.structs import Articulation
 
 from aed_tasks.assets import mesh_path
 from aed_tasks.catalogue import ObjectSpec
-from aed_tasks.scene import render_material
+from aed_tasks.scene import UPRIGHT, render_material
 
-UPRIGHT = [0.7071068, 0, -0.7071068, 0]  # turns SAPIEN's x-aligned cylinders and joint axes to z
 CAP_CLEARANCE = 0.001  # gap left between the cap and the housing at full travel
 SPRING_PRELOAD = 0.008  # drive target above the upper limit (m): the cap rests firmly up
 HOUSING_DENSITY, CAP_DENSITY = 800.0, 500.0

@@ -19,9 +19,8 @@ from mani_skill.utils.structs import Actor
 
 from aed_tasks.assets import mesh_path
 from aed_tasks.catalogue import MaterialSpec, ObjectSpec
-from aed_tasks.scene import physical_material, render_material
+from aed_tasks.scene import UPRIGHT, physical_material, render_material
 
-UPRIGHT = [0.7071068, 0, -0.7071068, 0]  # turns SAPIEN's x-aligned cylinders to z
 ALONG_Y = [0.7071068, 0, 0, 0.7071068]  # turns SAPIEN's x-aligned cylinders to y
 
 BELT_TOP = 0.05  # height of every belt surface above the table top

@@ -16,8 +16,8 @@ from mani_skill.utils.structs import Actor
 
 from aed_tasks.assets import MESH_PROFILES, mesh_path
 from aed_tasks.catalogue import MaterialSpec, ObjectSpec
-from aed_tasks.objects.vessels import UPRIGHT, frustum_wall
-from aed_tasks.scene import physical_material, render_material
+from aed_tasks.objects.vessels import frustum_wall
+from aed_tasks.scene import UPRIGHT, physical_material, render_material
 
 GLASS_WALL = 0.004  # collision wall thickness (m)
 GLASS_DENSITY = 2500.0  # soda-lime glass

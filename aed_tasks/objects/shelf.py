@@ -31,7 +31,7 @@ from mani_skill.envs.scene import ManiSkillScene
 from mani_skill.utils.structs import Actor
 
 from aed_tasks.catalogue import MaterialSpec, ObjectSpec
-from aed_tasks.scene import physical_material, render_material
+from aed_tasks.scene import UPRIGHT, physical_material, render_material
 
 SHELF_SHAPES: dict[str, tuple[str, ...]] = {
     "base": ("shelf_slab", "shelf_ledge"),
@@ -45,7 +45,6 @@ BOARD = 0.018  # thickness of the boards under which things are pushed
 SIDE = 0.018  # thickness of side boards, and the side of square posts
 SHELF_DENSITY = 600.0
 ITEM_DENSITY = 500.0
-UPRIGHT = [0.7071068, 0, -0.7071068, 0]  # turns SAPIEN's x-aligned cylinders to z
 MIN_CLEARANCE = 0.335  # the wrist reaches z = 0.31 m while the fingertips push 1 cm over the table
 MIN_FREE_WIDTH = 0.235  # the hand is 0.21 m wide along y (plus a little lateral slack)
 SETBACK = 0.03  # the supports stand this far behind the mouth: the forearm passes them at the sides

@@ -20,14 +20,13 @@ from mani_skill.envs.scene import ManiSkillScene
 from mani_skill.utils.structs import Actor
 
 from aed_tasks.catalogue import Colour, ObjectSpec, object_colours
-from aed_tasks.scene import physical_material, render_material
+from aed_tasks.scene import UPRIGHT, physical_material, render_material
 
 # Shape families per split (disjoint: a novel environment never shows a base shape).
 CUBE_SHAPES = {"base": ("magic_cube_3x3", "die_pips"), "novel": ("magic_cube_2x2", "die_numbers")}
 BOX_SHAPES = {"base": ("storage_box_plain", "storage_box_rimmed"), "novel": ("storage_box_handles", "storage_box_footed")}
 SHELF_SHAPES = {"base": ("bookshelf_stepped", "bookshelf_ladder"), "novel": ("bookshelf_posts", "bookshelf_cabinet")}
 
-UPRIGHT = [0.7071068, 0, -0.7071068, 0]  # turns SAPIEN's x-aligned cylinders to z
 BOARD = 0.015  # thickness of the shelf's boards and panels
 # The under-shelf board starts this far behind the front edges of the shelf's sides: a
 # top-down Panda hand reaches 2 cm past its fingertips, so a flush board would stop the

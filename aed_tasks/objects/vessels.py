@@ -9,9 +9,7 @@ from mani_skill.utils.structs import Actor
 
 from aed_tasks.assets import MESH_PROFILES, mesh_path
 from aed_tasks.catalogue import ObjectSpec
-from aed_tasks.scene import physical_material, render_material
-
-UPRIGHT = [0.7071068, 0, -0.7071068, 0]  # turns SAPIEN's x-aligned cylinders to z
+from aed_tasks.scene import UPRIGHT, physical_material, render_material
 
 
 def build_vessel(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: float = 450.0) -> Actor:
