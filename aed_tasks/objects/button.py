@@ -146,7 +146,7 @@ def build_button(
 ) -> Articulation:
     """A fixed push button; its single active joint is the cap's prismatic joint (qpos <= 0).
 
-    Call `set_button_spring` after building (and on reset): drives are joint properties.
+    Its return spring (`set_button_spring`) is set here and lasts: drives are joint properties.
     """
     g = ButtonGeometry.from_specs(housing, cap)
     builder = scene.create_articulation_builder()

@@ -100,7 +100,6 @@ class CloseDrawerEnv(AEDBaseEnv):
             unit.set_pose(Pose.create_from_pq(p=[front_x, seam_y + sign * offset, 0.0]))
             opening = rng.uniform(OPENING[0], min(OPENING[1], layout.travel - 0.005))
             unit.set_qpos(torch.tensor([[opening]], dtype=torch.float32))
-            unit.set_qvel(torch.zeros((1, 1)))
             openings.append(opening)
         self.distractor_start = torch.full((self.num_envs,), float(openings[1]), device=self.device)
         self.place_distractors(rng, DISTRACTOR_REGION, self._keep_out(front_x, seam_y, width))

@@ -82,6 +82,10 @@ class MoveGlassCupEnv(AEDBaseEnv):
         self.target_coaster = build_coaster(self.scene, objects["target_coaster"], "target_coaster")
         self.distractor_coaster = build_coaster(self.scene, objects["distractor_coaster"], "distractor_coaster")
         self.geometry = glass_geometry(objects["glass"])
+        # the outer wall as tensors, for the per-step spill check
+        self.wall_radii, self.wall_heights = (
+            torch.tensor(v, dtype=torch.float32, device=self.device) for v in self.geometry.wall.T.copy()
+        )
 
     def _initialize_task(self, rng: np.random.Generator) -> None:
         keep_out: list[tuple[float, float, float]] = []
@@ -102,9 +106,7 @@ class MoveGlassCupEnv(AEDBaseEnv):
         self.spilled = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
 
     def _place(self, actor, position: list[float], yaw: float) -> None:
-        actor.set_pose(Pose.create_from_pq(p=position, q=rotation_z(yaw)))
-        actor.set_linear_velocity(torch.zeros(3))
-        actor.set_angular_velocity(torch.zeros(3))
+        actor.set_pose(Pose.create_from_pq(p=position, q=rotation_z(yaw)))  # (ManiSkill zeroed velocities)
 
     # --- evaluation -------------------------------------------------------------------------
     def drops_outside(self) -> torch.Tensor:
@@ -113,8 +115,7 @@ class MoveGlassCupEnv(AEDBaseEnv):
         drops = torch.stack([d.pose.p for d in self.drops], dim=1)  # (b, n, 3)
         local = torch.einsum("bji,bnj->bni", frame[:, :3, :3], drops - frame[:, None, :3, 3])
         radial = torch.linalg.norm(local[..., :2], dim=-1)
-        radii, heights = (torch.tensor(v, dtype=local.dtype, device=local.device) for v in self.geometry.wall.T.copy())
-        beyond_wall = radial > interp(local[..., 2], heights, radii) + SPILL_MARGIN
+        beyond_wall = radial > interp(local[..., 2], self.wall_heights, self.wall_radii) + SPILL_MARGIN
         below = local[..., 2] < -0.01
         flown = local[..., 2] > self.geometry.height + 0.05
         return beyond_wall | below | flown

@@ -14,7 +14,6 @@ from aed_tasks.objects.button import (
     HOUSING_SHAPES,
     ButtonGeometry,
     build_button,
-    set_button_spring,
 )
 from aed_tasks.registration import register_task
 from aed_tasks.scene import rotation_z
@@ -87,14 +86,9 @@ class PressButtonEnv(AEDBaseEnv):
             ),
         }
 
-    @property
-    def geometry(self) -> ButtonGeometry:
-        return ButtonGeometry.from_specs(
-            self.env_spec.objects["button_housing"], self.env_spec.objects["button_cap"]
-        )
-
     def _load_task(self, options: dict) -> None:
         objects = self.env_spec.objects
+        self.geometry = ButtonGeometry.from_specs(objects["button_housing"], objects["button_cap"])
         self.button = build_button(
             self.scene, objects["button_housing"], objects["button_cap"], "button"
         )
@@ -106,8 +100,6 @@ class PressButtonEnv(AEDBaseEnv):
             Pose.create_from_pq(p=[x, y, 0.0], q=rotation_z(rng.uniform(0, 2 * np.pi)))
         )
         self.button.set_qpos(torch.zeros((self.num_envs, 1)))
-        self.button.set_qvel(torch.zeros((self.num_envs, 1)))
-        set_button_spring(self.button, g)
         self.place_distractors(rng, DISTRACTOR_REGION, [(x, y, g.footprint + HAND_CLEARANCE)])
         self.pressed = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
 
