@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     import tyro
 
     from aed_eval.logs import setup_logging
-    from aed_eval.storage import CollectionError
+    from aed_tasks.trajectory import CollectionError
 
     setup_logging()
     try:

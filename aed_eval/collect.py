@@ -9,7 +9,7 @@ For a task and split, in each chosen environment of the catalogue:
   the task's error kinds rotated so that every kind is represented evenly.
 
 Work is cut into shards of at most `shard_size` episodes of one (environment, role); each is
-written atomically (see `aed_eval.storage`) and its seeds derive only from
+written atomically (see `aed_tasks.trajectory`) and its seeds derive only from
 (seed, task, split, environment, role, episode index, attempt), so the result is the same
 whatever the number of workers, and an interrupted run resumes by redoing only the shards
 that were never committed. Workers are local processes, or Ray actors on a cluster (`ray`
@@ -23,13 +23,14 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import tyro
 
-from aed_eval import storage
-from aed_eval.logs import setup_logging
+from aed_eval.executors import execute
+from aed_tasks import trajectory
 
 logger = logging.getLogger(__name__)
 
@@ -168,13 +169,13 @@ class CollectConfig:
         }  # fmt: skip
 
     def identity(self) -> dict[str, Any]:
-        return {k: _plain(getattr(self, k)) for k in IDENTITY}
+        return {k: plain_value(getattr(self, k)) for k in IDENTITY}
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: _plain(v) for k, v in asdict(self).items()}
+        return {k: plain_value(v) for k, v in asdict(self).items()}
 
 
-def _plain(x: Any) -> Any:
+def plain_value(x: Any) -> Any:
     if isinstance(x, Path):
         return str(x)
     if isinstance(x, tuple):
@@ -270,7 +271,7 @@ class ShardRunner:
                 aed_tasks.env_id(self.cfg.task, self.cfg.split), demonstrator=demonstrator,
                 obs_mode=self.cfg.obs_mode, cameras=tuple(self.cfg.cameras),
             )  # fmt: skip
-            self._envs[demonstrator] = storage.make_step_recorder(env, self.cfg.record_env_states)
+            self._envs[demonstrator] = trajectory.make_step_recorder(env, self.cfg.record_env_states)
         return self._envs[demonstrator]
 
     def close(self) -> None:
@@ -278,13 +279,14 @@ class ShardRunner:
             env.close()
         self._envs.clear()
 
-    def run(self, shard: Shard, out: Path, tick: Callable[[int], None] | None = None) -> ShardResult:
-        """Record the shard's episodes into `out/<stem>.h5.tmp`, then commit it."""
+    def run(self, shard: Shard, tick: Callable[[int], None] | None = None, out: Path | None = None) -> ShardResult:
+        """Record the shard's episodes into `<out>/<stem>.h5.tmp` (default: the config's), then commit it."""
+        out = Path(out if out is not None else self.cfg.out)
         start = time.perf_counter()
         env = self.env(shard.demonstrator)
-        compression = storage.Compression(self.cfg.compression, self.cfg.compression_level)
+        compression = trajectory.Compression(self.cfg.compression, self.cfg.compression_level)
         steps = attempts = 0
-        with storage.ShardWriter(Path(out) / f"{shard.stem}.h5", compression) as writer:
+        with trajectory.ShardWriter(Path(out) / f"{shard.stem}.h5", compression) as writer:
             for k in shard.indices():
                 episode, recorded, attempt = self.episode(env, shard, k)
                 writer.add(episode, recorded, index=k, attempt=attempt, shard=shard.stem)
@@ -292,10 +294,10 @@ class ShardRunner:
                 attempts += attempt + 1
                 if tick is not None:
                     tick(1)
-            writer.commit(storage.env_info(env), shard.to_dict())
+            writer.commit(trajectory.env_info(env), shard.to_dict())
         return ShardResult(shard.stem, shard.count, steps, attempts, time.perf_counter() - start)
 
-    def episode(self, env: Any, shard: Shard, k: int) -> tuple[Any, storage.RecordedSteps, int]:
+    def episode(self, env: Any, shard: Shard, k: int) -> tuple[Any, trajectory.RecordedSteps, int]:
         """One accepted episode: a retry with the next seed when the expert cannot plan it or
         its outcome is not the role's (a clean expert that failed, an error that succeeded)."""
         from aed_tasks.expert import ErrorSpec, solve
@@ -358,17 +360,17 @@ def prepare_folder(cfg: CollectConfig, shards: list[Shard]) -> list[Shard]:
     """
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    manifest = storage.read_manifest(out)
+    manifest = trajectory.read_manifest(out)
     if manifest is not None:
         old = manifest.get("identity", {})
         for key, value in cfg.identity().items():
             if old.get(key) != value:
-                raise storage.CollectionError(
-                    out / storage.MANIFEST, f"was collected with {key}={old.get(key)!r}, this run asks {value!r}; "
+                raise trajectory.CollectionError(
+                    out / trajectory.MANIFEST, f"was collected with {key}={old.get(key)!r}, this run asks {value!r}; "
                     "use another --out or the same setting")  # fmt: skip
-    collection = storage.scan_collection(out)  # validates every shard before anything is written
-    storage.write_json_atomic(out / storage.MANIFEST, {
-        "format": storage.FORMAT, "identity": cfg.identity(), "config": cfg.to_dict(),
+    collection = trajectory.scan_collection(out)  # validates every shard before anything is written
+    trajectory.write_json_atomic(out / trajectory.MANIFEST, {
+        "format": trajectory.FORMAT, "identity": cfg.identity(), "config": cfg.to_dict(),
     })  # fmt: skip
     done = {s.json_path.stem: s for s in collection.shards}
     planned = {s.stem for s in shards}
@@ -378,7 +380,7 @@ def prepare_folder(cfg: CollectConfig, shards: list[Shard]) -> list[Shard]:
         if info is None:
             todo.append(shard)
         elif info.shard != shard.to_dict():
-            raise storage.CollectionError(
+            raise trajectory.CollectionError(
                 info.json_path, f"holds shard {info.shard}, this run plans {shard.to_dict()}; delete it or "
                 "keep the earlier counts")  # fmt: skip
     for leftover in collection.temporaries + collection.uncommitted:
@@ -418,102 +420,19 @@ def run_collection(
 
     with tqdm(total=total, unit="ep", desc=f"collect {cfg.task}-{cfg.split}", disable=not cfg.progress,
               dynamic_ncols=True) as bar:  # fmt: skip
-        if not todo:
-            pass
-        elif cfg.executor == "ray":
-            _execute_ray(cfg, todo, bar, done)
-        elif cfg.workers == 1:
-            _execute_inline(cfg, todo, bar, done, runner)
-        else:
-            _execute_pool(cfg, todo, bar, done)
+        if runner is not None and _env_key(runner.cfg) != _env_key(cfg):
+            raise ValueError(f"runner made for {_env_key(runner.cfg)}, this collection needs {_env_key(cfg)}")
+        if runner is not None:
+            runner.cfg = cfg
+        execute(
+            todo, partial(ShardRunner, cfg), on_done=done, workers=cfg.workers, executor=cfg.executor,
+            ray_address=cfg.ray_address, progress=bar, runner=runner,
+        )  # fmt: skip
     return summary
-
-
-def _execute_inline(
-    cfg: CollectConfig, shards: list[Shard], bar: Any, done: Callable[[ShardResult], None], runner: ShardRunner | None
-) -> None:
-    own = runner is None
-    runner = runner or ShardRunner(cfg)
-    if _env_key(runner.cfg) != _env_key(cfg):
-        raise ValueError(f"runner made for {_env_key(runner.cfg)}, this collection needs {_env_key(cfg)}")
-    runner.cfg = cfg
-    try:
-        for shard in shards:
-            done(runner.run(shard, Path(cfg.out), bar.update))
-    finally:
-        if own:
-            runner.close()
 
 
 def _env_key(cfg: CollectConfig) -> tuple:
     return cfg.task, cfg.split, cfg.obs_mode, tuple(cfg.cameras), cfg.record_env_states
-
-
-# Local process pool: each worker process keeps its own `ShardRunner` (and envs).
-_WORKER: dict[str, Any] = {}
-
-
-def _init_worker(cfg: CollectConfig, queue: Any, log_level: int) -> None:
-    setup_logging(log_level)
-    _WORKER["runner"] = ShardRunner(cfg)
-    _WORKER["queue"] = queue
-
-
-def _run_in_worker(shard: Shard, out: str) -> ShardResult:
-    queue = _WORKER["queue"]
-    return _WORKER["runner"].run(shard, Path(out), lambda n: queue.put(n))
-
-
-def _execute_pool(cfg: CollectConfig, shards: list[Shard], bar: Any, done: Callable[[ShardResult], None]) -> None:
-    import multiprocessing as mp
-    import queue as queue_lib
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-
-    ctx = mp.get_context("spawn")  # fresh interpreters: no forked renderer state
-    ticks = ctx.Queue()
-    level = logging.getLogger().getEffectiveLevel()
-    workers = min(cfg.workers, len(shards))
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(cfg, ticks, level)) as pool:
-        pending = {pool.submit(_run_in_worker, shard, str(cfg.out)) for shard in shards}
-        try:
-            while pending:
-                finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
-                while True:
-                    try:
-                        bar.update(ticks.get_nowait())
-                    except queue_lib.Empty:
-                        break
-                for future in finished:
-                    done(future.result())
-        except BaseException:
-            for future in pending:
-                future.cancel()
-            raise
-
-
-def _execute_ray(cfg: CollectConfig, shards: list[Shard], bar: Any, done: Callable[[ShardResult], None]) -> None:
-    try:
-        import ray
-        from ray.util import ActorPool
-    except ImportError as e:
-        raise ImportError("executor='ray' needs Ray: pip install 'aed-toolkit[ray]'") from e
-
-    if not ray.is_initialized():
-        ray.init(address=cfg.ray_address)
-
-    @ray.remote
-    class RayRunner:
-        def __init__(self, cfg: CollectConfig):
-            self.runner = ShardRunner(cfg)
-
-        def run(self, shard: Shard, out: str) -> ShardResult:
-            return self.runner.run(shard, Path(out))
-
-    actors = [RayRunner.remote(cfg) for _ in range(min(cfg.workers, len(shards)))]
-    pool = ActorPool(actors)
-    for result in pool.map_unordered(lambda actor, shard: actor.run.remote(shard, str(cfg.out)), shards):
-        bar.update(result.episodes)
-        done(result)
 
 
 # --- command -----------------------------------------------------------------------------------

@@ -10,12 +10,12 @@ from typing import Any, Literal
 import numpy as np
 import tyro
 
-from aed_eval import storage
+from aed_tasks import trajectory
 
 
-def summarize(root: Path, check: storage.Check = "quick") -> dict[str, Any]:
+def summarize(root: Path, check: trajectory.Check = "quick") -> dict[str, Any]:
     """Counts by role, environment and error kind, lengths per role, disk size."""
-    collection = storage.scan_collection(root, check)
+    collection = trajectory.scan_collection(root, check)
     episodes = collection.episodes()
     by_role = Counter(e.role + ("_suboptimal" if e.suboptimal else "") for e in episodes)
     by_env: dict[int, Counter] = defaultdict(Counter)
@@ -26,7 +26,7 @@ def summarize(root: Path, check: storage.Check = "quick") -> dict[str, Any]:
         lengths[e.role].append(e.length)
     frames = sum(e.num_frames for e in episodes)
     disk = sum(s.num_bytes for s in collection.shards)
-    manifest = storage.read_manifest(root) or {}
+    manifest = trajectory.read_manifest(root) or {}
     return {
         "path": str(root),
         "config": manifest.get("config"),

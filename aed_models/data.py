@@ -1,4 +1,4 @@
-"""PyTorch datasets and samplers over collected episodes (see `aed_eval.storage`).
+"""PyTorch datasets and samplers over collected episodes (see `aed_tasks.trajectory`).
 
 Training follows the paper: an epoch walks through every base environment once, in a
 shuffled order; one iteration takes one environment and samples from it N demonstrations
@@ -35,8 +35,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, Sampler
 
-from aed_eval import storage
 from aed_models.augment import RolloutAugment
+from aed_tasks import trajectory
 
 logger = logging.getLogger(__name__)
 
@@ -98,7 +98,7 @@ class FrameSequence:
     labels: torch.Tensor  # (L,) float32
     actions: torch.Tensor  # (L, A) float32
     source: torch.Tensor  # (L,) int64: index of each frame in the episode
-    ref: storage.EpisodeRef
+    ref: trajectory.EpisodeRef
 
     def __len__(self) -> int:
         return len(self.rgb)
@@ -136,7 +136,7 @@ class EpisodeReader:
             self._files[path] = h5py.File(path, "r")
         return self._files[path]
 
-    def read(self, ref: storage.EpisodeRef, indices: np.ndarray | None = None) -> FrameSequence:
+    def read(self, ref: trajectory.EpisodeRef, indices: np.ndarray | None = None) -> FrameSequence:
         """Frames `indices` (default: all T + 1) of one episode, in that order (repeats allowed)."""
         h5 = self._file(ref.path)
         group = h5[ref.traj]
@@ -188,11 +188,11 @@ def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
 
 
 def load_episodes(
-    roots: Path | str | Sequence[Path | str], split: str | None = "base", check: storage.Check = "quick"
-) -> list[storage.EpisodeRef]:
+    roots: Path | str | Sequence[Path | str], split: str | None = "base", check: trajectory.Check = "quick"
+) -> list[trajectory.EpisodeRef]:
     """Every episode of one or several collection folders (validated), optionally one split."""
     roots = [roots] if isinstance(roots, (str, Path)) else list(roots)
-    refs = [e for root in roots for e in storage.scan_collection(Path(root), check).episodes()]
+    refs = [e for root in roots for e in trajectory.scan_collection(Path(root), check).episodes()]
     return [e for e in refs if split is None or e.split == split]
 
 
@@ -215,7 +215,7 @@ class EnvironmentIterations(Dataset):
 
     def __init__(
         self,
-        episodes: Sequence[storage.EpisodeRef],
+        episodes: Sequence[trajectory.EpisodeRef],
         composition: Composition | str = "detector",
         camera: str = "front",
         augment: RolloutAugment | None = None,
@@ -270,7 +270,7 @@ class EnvironmentIterations(Dataset):
             batch["rollouts"]["is_failure"] = torch.tensor([s.ref.role == "agent_failure" for s in rollouts])
         return batch
 
-    def _sequence(self, ref: storage.EpisodeRef, rng: np.random.Generator, augment: bool) -> FrameSequence:
+    def _sequence(self, ref: trajectory.EpisodeRef, rng: np.random.Generator, augment: bool) -> FrameSequence:
         if augment and self.augment is not None:
             indices = self.augment.indices(ref.num_frames, rng)
         else:
@@ -278,10 +278,10 @@ class EnvironmentIterations(Dataset):
         return self.reader.read(ref, subsample(indices, self.max_frames))
 
 
-def _group(episodes: Sequence[storage.EpisodeRef], demos: str) -> dict[int, dict[str, list[storage.EpisodeRef]]]:
+def _group(episodes: Sequence[trajectory.EpisodeRef], demos: str) -> dict[int, dict[str, list[trajectory.EpisodeRef]]]:
     if demos not in ("optimal", "suboptimal", "any"):
         raise ValueError(f"demos={demos!r}: optimal, suboptimal or any")
-    pools: dict[int, dict[str, list[storage.EpisodeRef]]] = defaultdict(lambda: defaultdict(list))
+    pools: dict[int, dict[str, list[trajectory.EpisodeRef]]] = defaultdict(lambda: defaultdict(list))
     for ref in episodes:
         if ref.role == "demo" and demos != "any" and ref.suboptimal != (demos == "suboptimal"):
             continue
@@ -289,7 +289,7 @@ def _group(episodes: Sequence[storage.EpisodeRef], demos: str) -> dict[int, dict
     return pools
 
 
-def _draw(pool: list[storage.EpisodeRef], n: int, rng: np.random.Generator) -> list[storage.EpisodeRef]:
+def _draw(pool: list[trajectory.EpisodeRef], n: int, rng: np.random.Generator) -> list[trajectory.EpisodeRef]:
     if n == 0:
         return []
     picks = rng.choice(len(pool), size=n, replace=len(pool) < n)
@@ -322,7 +322,7 @@ class EnvironmentSampler(Sampler):
 class EpisodeDataset(Dataset):
     """One item = one whole episode (offline scoring, evaluation), optionally capped in frames."""
 
-    def __init__(self, episodes: Sequence[storage.EpisodeRef], camera: str = "front", max_frames: int | None = None):
+    def __init__(self, episodes: Sequence[trajectory.EpisodeRef], camera: str = "front", max_frames: int | None = None):
         self.episodes = list(episodes)
         self.max_frames = max_frames
         self.reader = EpisodeReader(camera)

@@ -86,7 +86,7 @@ def bench(cfg: Config) -> dict:
             collect_s = raw_s = 0.0
             for role in cfg.roles:
                 shard = Shard(collect_cfg.task, collect_cfg.split, env_index, role, 0, cfg.episodes)
-                result = runner.run(shard, Path(tmp))
+                result = runner.run(shard, out=Path(tmp))
                 h5_path = Path(tmp) / f"{shard.stem}.h5"
                 collect_s += result.seconds
                 raw_s += raw_replay(runner.env(shard.demonstrator).env, h5_path)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import torch
 
-from aed_eval import storage
+from aed_tasks import trajectory
 from aed_eval.collect import CollectConfig, run_collection
 from aed_eval.data_info import summarize
 from aed_models.data import EnvironmentIterations, load_episodes
@@ -46,7 +46,7 @@ def digest(root: Path) -> dict[str, tuple]:
     """What a collection holds, shard by shard: episode entries and hashes of every array."""
     return {
         shard.json_path.stem: (json.dumps(shard.body["episodes"], sort_keys=True), array_hashes(shard.h5_path))
-        for shard in storage.scan_collection(root, check="full")
+        for shard in trajectory.scan_collection(root, check="full")
     }
 
 
@@ -70,14 +70,14 @@ def state_collection(tmp_path_factory) -> Path:
 
 @pytest.mark.slow
 def test_episodes_on_disk_carry_roles_frames_and_labels(rgbd_collection):
-    episodes = storage.scan_collection(rgbd_collection, check="full").episodes()
+    episodes = trajectory.scan_collection(rgbd_collection, check="full").episodes()
     assert sorted(e.role for e in episodes) == ["agent_failure", "agent_failure", "agent_success", "demo"]
     kinds = {e.error_kind for e in episodes if e.role == "agent_failure"}
     assert len(kinds) == 2, "failures rotate through the error kinds"
     for ref in episodes:
         with h5py.File(ref.path, "r") as h5:
             group = h5[ref.traj]
-            rgb, depth = storage.read_frames(h5, ref.traj)
+            rgb, depth = trajectory.read_frames(h5, ref.traj)
             labels = group["error_label"][()]
             assert rgb.shape == (ref.num_frames, 120, 160, 3) and rgb.dtype == np.uint8
             assert depth.shape == (ref.num_frames, 120, 160, 1) and depth.dtype == np.int16
@@ -199,10 +199,10 @@ def test_corrupt_or_foreign_files_are_named_and_nothing_is_lost(state_collection
         (root / "notes.txt").write_text("not a shard")
         named = "notes.txt"
     else:
-        named = storage.MANIFEST
+        named = trajectory.MANIFEST
     files = {p.name: p.read_bytes() for p in root.iterdir()}
     cfg = CollectConfig(**{**STATE_RUN, "shard_size": 2} if damage == "other_settings" else STATE_RUN, out=root)
-    with pytest.raises(storage.CollectionError, match=named.replace(".", r"\.")):
+    with pytest.raises(trajectory.CollectionError, match=named.replace(".", r"\.")):
         run_collection(cfg)
     assert {p.name: p.read_bytes() for p in root.iterdir()} == files, "a failed run changed the folder"
 

@@ -1,6 +1,6 @@
 """Training data: per-iteration compositions, frame tensors, labels, padding, determinism.
 
-Runs on small synthetic shards written with `aed_eval.storage` (no simulation): every
+Runs on small synthetic shards written with `aed_tasks.trajectory` (no simulation): every
 frame's pixels encode its index in the episode, so alignment can be checked exactly.
 """
 
@@ -13,7 +13,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from aed_eval import storage
+from aed_tasks import trajectory
 from aed_models.augment import RolloutAugment
 from aed_models.data import (
     DEPTH_SCALE_MM,
@@ -30,7 +30,7 @@ H, W = 120, 160
 ONSET = 9
 
 
-def synthetic(role: str, env_index: int, seed: int, steps: int) -> tuple[Episode, storage.RecordedSteps]:
+def synthetic(role: str, env_index: int, seed: int, steps: int) -> tuple[Episode, trajectory.RecordedSteps]:
     """An episode whose frame t has red = t, green = 100 + env_index, depth = 10 * t mm."""
     t = np.arange(steps + 1)
     rgb = np.zeros((steps + 1, H, W, 3), np.uint8)
@@ -47,7 +47,7 @@ def synthetic(role: str, env_index: int, seed: int, steps: int) -> tuple[Episode
         fail=np.zeros(steps, bool), stage=np.zeros(steps, np.int16), error_label=labels,
         error_kind="no_grasp" if failure else None, error_onset=ONSET if failure else None,
     )  # fmt: skip
-    steps_rec = storage.RecordedSteps(
+    steps_rec = trajectory.RecordedSteps(
         obs={"sensor_data": {"front": {"rgb": rgb, "depth": depth}}}, env_states=None,
         terminated=np.zeros(steps, bool), truncated=np.zeros(steps, bool), rewards=np.zeros(steps, np.float32),
         reset_kwargs={"seed": seed, "options": {"env_index": env_index}},
@@ -62,7 +62,7 @@ def collection(tmp_path_factory) -> Path:
     info = {"env_id": "aed_tasks:AED-PickPlace-base", "env_kwargs": {}, "max_episode_steps": 250}
     for env_index in (0, 1):
         for role, n in (("demo", 3), ("agent_success", 4), ("agent_failure", 2)):
-            writer = storage.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
+            writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
             for k in range(n):
                 writer.add(*synthetic(role, env_index, seed=100 * env_index + k, steps=15 + 3 * k))
             writer.commit(info, {"env_index": env_index, "group": role})
