@@ -1,0 +1,221 @@
+"""Metrics of the AED protocol: rollout-level AUROC / AUPRC, calibrated thresholds, delays.
+
+Rollout-level accuracy (the paper's appendix, after MoMaRT). A rollout raises an alarm at a
+threshold when any of its frames' scores reaches it; then
+
+    failed + alarm = TP,  failed + no alarm = FN,  succeeded + alarm = FP,  succeeded + no alarm = TN.
+
+Since "any frame reaches it" is "the rollout's maximum reaches it", every rollout-level
+count depends on the per-rollout maximum score alone. ROC and PR curves sweep 5000
+thresholds spread evenly over [0, 1] (probabilities), or over the observed score range
+(SVDDED's distances and other unbounded scores). AUROC is the trapezoid area under the ROC
+curve; AUPRC is the average precision (the step-wise area under the PR curve, as
+scikit-learn's `average_precision_score`), both over those thresholds.
+
+Beyond the paper:
+- `conformal_threshold`: split-conformal calibration on held-out successful rollouts, so
+  that a new successful rollout raises a false alarm with probability at most `alpha`;
+- `alarm_rates`: TPR, TNR, balanced accuracy and detection time at one threshold (what
+  FAIL-Detect and FIPER report);
+- `frame_auroc` and `detection_delays`: on episodes with true frame labels (the experts'
+  injected failures in the novel split).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+NUM_THRESHOLDS = 5000
+
+
+def rollout_maxima(scores: Sequence[np.ndarray]) -> np.ndarray:
+    """The maximum score of each rollout (what the any-frame alarm rule compares)."""
+    if not len(scores):
+        raise ValueError("no rollouts to score")
+    for i, s in enumerate(scores):
+        if len(s) == 0:
+            raise ValueError(f"rollout {i} has no scores")
+        if not np.all(np.isfinite(s)):
+            raise ValueError(f"rollout {i} has non-finite scores")
+    return np.asarray([float(np.max(s)) for s in scores])
+
+
+def thresholds(kind: str, maxima: np.ndarray | None = None, num: int = NUM_THRESHOLDS) -> np.ndarray:
+    """`num` thresholds spread evenly over [0, 1] (`probability`) or the observed range (`distance`)."""
+    if kind == "probability":
+        return np.linspace(0.0, 1.0, num)
+    if kind == "distance":
+        if maxima is None or not len(maxima):
+            raise ValueError("distance thresholds need the observed scores")
+        return np.linspace(float(np.min(maxima)), float(np.max(maxima)), num)
+    raise ValueError(f"kind={kind!r}: probability or distance")
+
+
+@dataclass
+class Curves:
+    """Confusion counts at every threshold (ascending) and the areas under the curves."""
+
+    thresholds: np.ndarray
+    tp: np.ndarray
+    fp: np.ndarray
+    positives: int  # failed rollouts
+    negatives: int  # successful rollouts
+
+    @property
+    def tpr(self) -> np.ndarray:
+        return self.tp / max(self.positives, 1)
+
+    @property
+    def fpr(self) -> np.ndarray:
+        return self.fp / max(self.negatives, 1)
+
+    @property
+    def precision(self) -> np.ndarray:
+        alarms = self.tp + self.fp
+        return np.divide(self.tp, alarms, out=np.ones_like(self.tp, dtype=float), where=alarms > 0)
+
+    @property
+    def auroc(self) -> float:
+        if not self.positives or not self.negatives:
+            return float("nan")
+        fpr = np.concatenate([[1.0], self.fpr, [0.0]])  # thresholds ascending: rates fall
+        tpr = np.concatenate([[1.0], self.tpr, [0.0]])
+        return float(np.sum((fpr[:-1] - fpr[1:]) * (tpr[:-1] + tpr[1:]) / 2))  # trapezoids
+
+    @property
+    def auprc(self) -> float:
+        """Average precision: sum over thresholds (descending) of recall gain x precision."""
+        if not self.positives:
+            return float("nan")
+        recall = self.tpr[::-1]
+        precision = self.precision[::-1]
+        gains = np.diff(np.concatenate([[0.0], recall]))
+        return float(np.sum(gains * precision))
+
+
+def rollout_curves(maxima: np.ndarray, failed: np.ndarray, grid: np.ndarray) -> Curves:
+    """Counts of the paper's accuracy function at every threshold of `grid`."""
+    maxima, failed = np.asarray(maxima, dtype=float), np.asarray(failed, dtype=bool)
+    if maxima.shape != failed.shape:
+        raise ValueError(f"{maxima.shape[0]} scores but {failed.shape[0]} outcomes")
+    order = np.sort(maxima[failed]), np.sort(maxima[~failed])
+    # alarms at threshold t: rollouts whose maximum >= t
+    tp = len(order[0]) - np.searchsorted(order[0], grid, side="left")
+    fp = len(order[1]) - np.searchsorted(order[1], grid, side="left")
+    return Curves(np.asarray(grid, dtype=float), tp.astype(float), fp.astype(float), int(failed.sum()), int((~failed).sum()))
+
+
+def exact_auroc(positive: np.ndarray, negative: np.ndarray) -> float:
+    """P(a positive scores above a negative), ties counted half (Mann-Whitney U / (P N))."""
+    positive, negative = np.asarray(positive, dtype=float), np.asarray(negative, dtype=float)
+    if not len(positive) or not len(negative):
+        return float("nan")
+    negative = np.sort(negative)
+    below = np.searchsorted(negative, positive, side="left")
+    ties = np.searchsorted(negative, positive, side="right") - below
+    return float((below + 0.5 * ties).sum() / (len(positive) * len(negative)))
+
+
+def frame_auroc(scores: Sequence[np.ndarray], labels: Sequence[np.ndarray]) -> float:
+    """Frame-level AUROC over episodes with true labels (1 = error frame)."""
+    s = np.concatenate([np.asarray(x, dtype=float) for x in scores])
+    y = np.concatenate([np.asarray(x, dtype=bool) for x in labels])
+    if s.shape != y.shape:
+        raise ValueError(f"{s.shape[0]} frame scores but {y.shape[0]} frame labels")
+    return exact_auroc(s[y], s[~y])
+
+
+# --- calibrated threshold ------------------------------------------------------------------------
+def conformal_threshold(success_maxima: np.ndarray, alpha: float) -> float:
+    """Split-conformal alarm threshold from held-out successful rollouts' maximum scores.
+
+    With the calibration maxima and a new successful rollout's maximum exchangeable, the
+    ceil((n + 1)(1 - alpha))-th smallest calibration maximum m_(k) satisfies
+    P(new maximum > m_(k)) <= alpha. Alarms fire at score >= threshold, so the threshold is
+    the next float above m_(k). When n is too small for alpha (k > n) no finite threshold
+    guarantees it: +inf (never alarm) is returned.
+    """
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha={alpha}: must lie in (0, 1)")
+    m = np.sort(np.asarray(success_maxima, dtype=float))
+    if not len(m):
+        raise ValueError("no successful rollouts to calibrate on")
+    k = math.ceil((len(m) + 1) * (1.0 - alpha))
+    if k > len(m):
+        return float("inf")
+    return float(np.nextafter(m[k - 1], np.inf))
+
+
+@dataclass
+class AlarmRates:
+    threshold: float
+    tpr: float  # failed rollouts alarmed
+    tnr: float  # successful rollouts not alarmed
+    balanced_accuracy: float
+    detection_step_mean: float  # first alarm step of alarmed failed rollouts (nan if none)
+    detection_fraction_mean: float  # the same as a fraction of the rollout's length
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def first_alarm(scores: np.ndarray, threshold: float) -> int | None:
+    """Index of the first frame whose score reaches the threshold (None: no alarm)."""
+    hits = np.flatnonzero(np.asarray(scores) >= threshold)
+    return int(hits[0]) if len(hits) else None
+
+
+def alarm_rates(scores: Sequence[np.ndarray], failed: np.ndarray, threshold: float) -> AlarmRates:
+    """TPR / TNR / balanced accuracy and detection time of the any-frame rule at one threshold."""
+    failed = np.asarray(failed, dtype=bool)
+    alarms = [first_alarm(s, threshold) for s in scores]
+    alarmed = np.asarray([a is not None for a in alarms])
+    tpr = float(alarmed[failed].mean()) if failed.any() else float("nan")
+    tnr = float((~alarmed[~failed]).mean()) if (~failed).any() else float("nan")
+    steps = [a for a, f in zip(alarms, failed, strict=True) if f and a is not None]
+    fractions = [a / max(len(s) - 1, 1) for a, s, f in zip(alarms, scores, failed, strict=True) if f and a is not None]
+    return AlarmRates(
+        threshold=threshold, tpr=tpr, tnr=tnr, balanced_accuracy=float(np.nanmean([tpr, tnr])),
+        detection_step_mean=float(np.mean(steps)) if steps else float("nan"),
+        detection_fraction_mean=float(np.mean(fractions)) if fractions else float("nan"),
+    )  # fmt: skip
+
+
+DELAY_CLASSES = ("early", "on_time", "late", "missed")
+
+
+def detection_delays(
+    scores: Sequence[np.ndarray], onsets: Sequence[int], threshold: float, window: int = 10
+) -> dict[str, object]:
+    """First alarm minus labelled onset (frames) on failures with true onsets.
+
+    early: before the onset; on_time: within `window` frames after it; late: later; missed:
+    no alarm at all. `onsets` index frames (frame t + 1 follows action t: a label onset at
+    action k is frame k + 1).
+    """
+    delays, counts = [], dict.fromkeys(DELAY_CLASSES, 0)
+    for s, onset in zip(scores, onsets, strict=True):
+        alarm = first_alarm(s, threshold)
+        if alarm is None:
+            counts["missed"] += 1
+            continue
+        delay = alarm - int(onset)
+        delays.append(delay)
+        counts["early" if delay < 0 else "on_time" if delay <= window else "late"] += 1
+    return {"counts": counts, "delays": delays, "median_delay": float(np.median(delays)) if delays else float("nan"),
+            "window": window}  # fmt: skip
+
+
+# --- reference scores ----------------------------------------------------------------------------
+def time_only_scores(lengths: Sequence[int], horizon: int) -> list[np.ndarray]:
+    """Score = step / horizon: no input at all. Shows how much of a number is rollout length."""
+    return [np.arange(n, dtype=float) / max(horizon, 1) for n in lengths]
+
+
+def random_scores(lengths: Sequence[int], seed: int = 0) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return [rng.uniform(0.0, 1.0, n) for n in lengths]
