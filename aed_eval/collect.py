@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from functools import partial
@@ -94,6 +95,8 @@ class CollectConfig:
     """Root seed; every episode's seed derives from it deterministically."""
     max_attempts: int = 5
     """Tries per episode (new seed each) before the expert is declared unable."""
+    max_retry_rate: float = 0.2
+    """Retries (rejected tries) per recorded episode above which the collection fails loudly."""
     progress: bool = True
     """Show a progress bar."""
 
@@ -128,6 +131,8 @@ class CollectConfig:
             raise ValueError(f"num_failures={self.num_failures}: {self.task} declares no error kinds")
         if self.num_suboptimal_demos and not task_cls.recoverable_errors:
             raise ValueError(f"num_suboptimal_demos={self.num_suboptimal_demos}: {self.task} has no recoverable errors")
+        if not 0.0 <= self.max_retry_rate:
+            raise ValueError(f"max_retry_rate={self.max_retry_rate}: must be >= 0")
         for name in ("shard_size", "workers", "max_attempts"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
@@ -241,8 +246,8 @@ def error_kind_for(kinds: tuple[str, ...], env_index: int, k: int) -> str:
 
 
 # --- one worker --------------------------------------------------------------------------------
-class CollectError(RuntimeError):
-    """The expert could not produce a wanted episode within `max_attempts`."""
+class CollectError(ValueError):
+    """The expert could not produce a wanted episode within `max_attempts`, or needed too many retries."""
 
 
 @dataclass
@@ -270,6 +275,7 @@ class ShardRunner:
             env = gym.make(
                 aed_tasks.env_id(self.cfg.task, self.cfg.split), demonstrator=demonstrator,
                 obs_mode=self.cfg.obs_mode, cameras=tuple(self.cfg.cameras),
+                terminate_on_success=False,  # stored `terminated` flags must not mark successes alone
             )  # fmt: skip
             self._envs[demonstrator] = trajectory.make_step_recorder(env, self.cfg.record_env_states)
         return self._envs[demonstrator]
@@ -288,8 +294,9 @@ class ShardRunner:
         steps = attempts = 0
         with trajectory.ShardWriter(Path(out) / f"{shard.stem}.h5", compression) as writer:
             for k in shard.indices():
-                episode, recorded, attempt = self.episode(env, shard, k)
-                writer.add(episode, recorded, index=k, attempt=attempt, shard=shard.stem)
+                episode, recorded, rejected = self.episode(env, shard, k)
+                attempt = len(rejected)
+                writer.add(episode, recorded, index=k, attempt=attempt, rejected=rejected, shard=shard.stem)
                 steps += len(episode)
                 attempts += attempt + 1
                 if tick is not None:
@@ -297,16 +304,17 @@ class ShardRunner:
             writer.commit(trajectory.env_info(env), shard.to_dict())
         return ShardResult(shard.stem, shard.count, steps, attempts, time.perf_counter() - start)
 
-    def episode(self, env: Any, shard: Shard, k: int) -> tuple[Any, trajectory.RecordedSteps, int]:
-        """One accepted episode: a retry with the next seed when the expert cannot plan it or
-        its outcome is not the role's (a clean expert that failed, an error that succeeded)."""
+    def episode(self, env: Any, shard: Shard, k: int) -> tuple[Any, trajectory.RecordedSteps, list[str]]:
+        """One accepted episode and why earlier tries were rejected: a retry with the next seed
+        when the expert cannot plan it or its outcome is not the role's (a clean expert that
+        failed, an error that did not fail in its named way, a script cut by the time limit)."""
         from aed_tasks.expert import ErrorSpec, solve
 
         base = env.unwrapped
         error = None
         if shard.role == "agent_failure":
             error = ErrorSpec(error_kind_for(base.error_kinds, shard.env_index, k))
-        problem = ""
+        problem, rejected = "", []
         for attempt in range(self.cfg.max_attempts):
             seed = episode_seed(self.cfg.seed, shard.task, shard.split, shard.env_index, shard.group, k, attempt)
             try:
@@ -319,8 +327,9 @@ class ShardRunner:
                 episode.depth.clear()
                 problem = _rejection(episode, shard)
                 if not problem:
-                    return episode, recorded, attempt
-            logger.info("%s episode %d attempt %d (seed %d) rejected: %s", shard.stem, k, attempt, seed, problem)
+                    return episode, recorded, rejected
+            rejected.append(problem)
+            logger.warning("%s episode %d attempt %d (seed %d) rejected: %s", shard.stem, k, attempt, seed, problem)
         raise CollectError(f"{shard.stem}: episode {k} failed {self.cfg.max_attempts} attempts; last: {problem}")
 
 
@@ -328,14 +337,20 @@ def _rejection(episode: Any, shard: Shard) -> str:
     """Why the episode does not fit its role ('' when it does)."""
     if episode.env_index != shard.env_index:
         return f"ran in environment {episode.env_index}, not {shard.env_index}"
+    if episode.truncated:
+        return "the time limit cut the expert's script"
     if shard.role == "agent_failure":
         if episode.succeeded:
             return "the intervened expert still succeeded"
         if episode.error_onset is None:
             return "no error onset"
+        if episode.outcome_problem:
+            return f"not a {episode.error_kind!r} failure: {episode.outcome_problem}"
         return ""
     if not episode.succeeded:
         return f"the expert did not succeed (stage {int(episode.stage.max(initial=0))})"
+    if shard.suboptimal and episode.first_attempt_problem:
+        return f"the first attempt ({episode.first_attempt_kind}) did not fail as named: {episode.first_attempt_problem}"
     return ""
 
 
@@ -368,7 +383,7 @@ def prepare_folder(cfg: CollectConfig, shards: list[Shard]) -> list[Shard]:
                 raise trajectory.CollectionError(
                     out / trajectory.MANIFEST, f"was collected with {key}={old.get(key)!r}, this run asks {value!r}; "
                     "use another --out or the same setting")  # fmt: skip
-    collection = trajectory.scan_collection(out)  # validates every shard before anything is written
+    collection = trajectory.scan_collection(out, check="full")  # every shard, its sha256 too, before any write
     trajectory.write_json_atomic(out / trajectory.MANIFEST, {
         "format": trajectory.FORMAT, "identity": cfg.identity(), "config": cfg.to_dict(),
     })  # fmt: skip
@@ -428,7 +443,28 @@ def run_collection(
             todo, partial(ShardRunner, cfg), on_done=done, workers=cfg.workers, executor=cfg.executor,
             ray_address=cfg.ray_address, progress=bar, runner=runner,
         )  # fmt: skip
+    check_retry_rate(Path(cfg.out), cfg.max_retry_rate)
     return summary
+
+
+def retries(root: Path) -> tuple[int, int, Counter]:
+    """(episodes, rejected tries, problems by count) of every committed shard of a folder."""
+    episodes, rejected, problems = 0, 0, Counter()
+    for shard in trajectory.scan_collection(root).shards:
+        for entry in shard.body["episodes"]:
+            episodes += 1
+            rejected += int(entry.get("attempt", 0))
+            problems.update(problem[:100] for problem in entry.get("rejected", []))
+    return episodes, rejected, problems
+
+
+def check_retry_rate(root: Path, max_rate: float) -> None:
+    """Fail loudly when the experts needed too many retries: their behaviour is not what it claims."""
+    episodes, rejected, problems = retries(root)
+    if episodes and rejected / episodes > max_rate:
+        common = "; ".join(f"{n}x {p}" for p, n in problems.most_common(3))
+        raise CollectError(f"{root}: {rejected} rejected tries for {episodes} episodes ({rejected / episodes:.0%} > "
+                           f"max_retry_rate={max_rate:.0%}); most common: {common}")  # fmt: skip
 
 
 def _env_key(cfg: CollectConfig) -> tuple:

@@ -14,7 +14,7 @@ from aed_tasks import trajectory
 
 
 def summarize(root: Path, check: trajectory.Check = "quick") -> dict[str, Any]:
-    """Counts by role, environment and error kind, lengths per role, disk size."""
+    """Counts by role, environment and error kind, lengths per role and outcome, disk size."""
     collection = trajectory.scan_collection(root, check)
     episodes = collection.episodes()
     by_role = Counter(e.role + ("_suboptimal" if e.suboptimal else "") for e in episodes)
@@ -39,16 +39,35 @@ def summarize(root: Path, check: trajectory.Check = "quick") -> dict[str, Any]:
         "by_env": {str(k): dict(sorted(v.items())) for k, v in sorted(by_env.items())},
         "error_kinds": dict(sorted(Counter(e.error_kind for e in episodes if e.error_kind).items())),
         "lengths": {role: _stats(v) for role, v in sorted(lengths.items())},
+        # the same endings for both outcomes: their length distributions should overlap
+        "lengths_by_outcome": {
+            outcome: _stats([e.length for e in episodes if e.success == (outcome == "success")])
+            for outcome in ("success", "failure")
+            if any(e.success == (outcome == "success") for e in episodes)
+        },
         "success_rate": {role: float(np.mean([e.success for e in episodes if e.role == role])) for role in lengths},
+        "retries": _retries(collection),
         "disk_bytes": disk,
         "bytes_per_frame": disk / frames if frames else 0.0,
         "leftovers": [p.name for p in collection.temporaries + collection.uncommitted],
     }
 
 
+def _retries(collection: trajectory.Collection) -> dict[str, Any]:
+    """Tries the collection rejected (an expert that could not plan, or missed its role's outcome)."""
+    entries = [entry for shard in collection.shards for entry in shard.body["episodes"]]
+    rejected = sum(int(e.get("attempt", 0)) for e in entries)
+    problems = Counter(p[:100] for e in entries for p in e.get("rejected", []))
+    return {"rejected": rejected, "per_episode": rejected / len(entries) if entries else 0.0,
+            "problems": dict(problems.most_common(5))}  # fmt: skip
+
+
 def _stats(values: list[int]) -> dict[str, float]:
     a = np.asarray(values)
-    return {"min": int(a.min()), "mean": float(a.mean()), "max": int(a.max())}
+    return {
+        "count": len(a), "min": int(a.min()), "median": float(np.median(a)), "mean": float(a.mean()),
+        "max": int(a.max()),
+    }  # fmt: skip
 
 
 def format_summary(info: dict[str, Any]) -> str:
@@ -58,10 +77,15 @@ def format_summary(info: dict[str, Any]) -> str:
         f"tasks {', '.join(info['tasks']) or '-'}; splits {', '.join(info['splits']) or '-'}",
         "by role:        " + _pairs(info["by_role"]),
         "error kinds:    " + _pairs(info["error_kinds"]),
-        "lengths (steps, min/mean/max):",
+        "lengths (steps, min/median/max):",
     ]
     for role, s in info["lengths"].items():
-        lines.append(f"  {role:<16}{s['min']:>5} {s['mean']:7.1f} {s['max']:>5}   success {info['success_rate'][role]:.0%}")
+        lines.append(f"  {role:<16}{_lengths(s)}   success {info['success_rate'][role]:.0%}")
+    for outcome, s in info["lengths_by_outcome"].items():
+        lines.append(f"  {'all, ' + outcome:<16}{_lengths(s)}")
+    retries = info["retries"]
+    lines.append(f"retries:        {retries['rejected']} rejected tries ({retries['per_episode']:.2f} per episode)"
+                 + "".join(f"\n  {n}x {p}" for p, n in retries["problems"].items()))  # fmt: skip
     roles = sorted({r for counts in info["by_env"].values() for r in counts})
     lines.append("by environment: " + " ".join(f"{r:>14}" for r in roles))
     for env, counts in info["by_env"].items():
@@ -69,6 +93,10 @@ def format_summary(info: dict[str, Any]) -> str:
     if info["leftovers"]:
         lines.append(f"unfinished (interrupted run; re-run aed collect): {', '.join(info['leftovers'])}")
     return "\n".join(lines)
+
+
+def _lengths(s: dict[str, float]) -> str:
+    return f"{s['min']:>5} {s['median']:7.1f} {s['max']:>5}  ({s['count']} episodes)"
 
 
 def _pairs(counts: dict[str, int]) -> str:

@@ -8,12 +8,12 @@ import platform
 VULKAN_HELP = (
     "SAPIEN found no Vulkan rendering device. On Debian bookworm without a GPU, install Mesa's\n"
     "lavapipe >= 24.3 from bookworm-backports (the distribution's Mesa 22.3 lacks\n"
-    "VK_KHR_external_semaphore_fd):\n"
-    "  echo 'deb http://deb.debian.org/debian bookworm-backports main' \\\n"
-    "    > /etc/apt/sources.list.d/aed-backports.list\n"
+    "VK_KHR_external_semaphore_fd): add the bookworm-backports suite (component main) of the\n"
+    "Debian mirror your apt sources already use, then\n"
     "  apt-get update && apt-get install -y -t bookworm-backports mesa-vulkan-drivers libvulkan1\n"
-    "or simply run scripts/setup.sh, which does exactly this. On a GPU machine, install the\n"
-    "vendor's Vulkan driver (e.g. NVIDIA's libnvidia-gl) instead."
+    "or simply run scripts/setup.sh, which does exactly this with the mirror it finds in your\n"
+    "apt sources. On a GPU machine, install the vendor's Vulkan driver (e.g. NVIDIA's\n"
+    "libnvidia-gl) instead."
 )
 
 PACKAGES = ("aed-toolkit", "mani-skill", "sapien", "mplib", "numpy", "torch", "gymnasium", "opencv-python-headless")

@@ -28,12 +28,12 @@ TEXTURE_PALETTES: dict[str, tuple[tuple[tuple[int, int, int], tuple[int, int, in
         ((110, 140, 100), (70, 95, 65)),  # moss
     ),
     "novel": (
-        ((230, 225, 215), (170, 160, 150)),  # ivory
-        ((90, 90, 100), (45, 45, 55)),  # charcoal
-        ((200, 150, 170), (150, 100, 120)),  # rose
-        ((100, 170, 170), (50, 115, 120)),  # teal
-        ((215, 190, 90), (160, 130, 50)),  # mustard
-        ((150, 120, 180), (100, 75, 130)),  # lilac
+        ((120, 215, 190), (60, 160, 140)),  # mint
+        ((70, 70, 85), (35, 35, 45)),  # charcoal
+        ((235, 160, 200), (185, 105, 150)),  # rose
+        ((30, 175, 165), (5, 120, 115)),  # petrol
+        ((235, 215, 60), (190, 165, 20)),  # mustard
+        ((175, 130, 230), (120, 80, 175)),  # lilac
     ),
 }
 
@@ -79,21 +79,25 @@ MESH_PROFILES: dict[str, dict] = {
     "spindle": {"outline": [(0, 0), (0.2, 0), (0.5, 0.5), (0.2, 1), (0, 1)]},
     # push buttons (Press Button): polygonal prisms of unit height
     "button_housing_hex": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)], "sections": 6},
-    "button_cap_octagon": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)], "sections": 8},
+    "button_cap_dome": {"outline": [(0, 0), (0.5, 0), (0.5, 0.3), (0.433, 0.65), (0.25, 0.9), (0, 1)]},
     # glasses, water drops and coasters (Move Glass Cup); a glass's collision follows its outer wall
     "glass_tumbler": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0.45, 1), (0.45, 0.1), (0, 0.1)]},
     "glass_tapered": {"outline": [(0, 0), (0.41, 0), (0.5, 1), (0.45, 1), (0.365, 0.1), (0, 0.1)]},
-    "glass_faceted": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0.45, 1), (0.45, 0.12), (0, 0.12)], "sections": 8},
-    "glass_flared": {
-        "outline": [(0, 0), (0.43, 0), (0.43, 0.55), (0.5, 1), (0.45, 1), (0.38, 0.55), (0.38, 0.1), (0, 0.1)]
+    "glass_octagonal": {  # eight facets over a chamfered foot
+        "outline": [(0, 0), (0.42, 0), (0.5, 0.35), (0.5, 1), (0.45, 1), (0.45, 0.35), (0.37, 0.1), (0, 0.1)], "sections": 8
+    },
+    "glass_round_bottom": {  # a rounded belly under a straight rim
+        "outline": [
+            (0, 0), (0.3, 0), (0.45, 0.25), (0.5, 0.55), (0.5, 1), (0.45, 1), (0.45, 0.55), (0.4, 0.25), (0.25, 0.1), (0, 0.1)
+        ]
     },
     "glass_water_drop": {
         "outline": [(0, 0), (0.354, 0.146), (0.5, 0.5), (0.354, 0.854), (0, 1)], "sections": 8
     },
     "coaster_hexagon": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)], "sections": 6},
     "coaster_oval": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)]},
-    # products (Factory Packing, novel split): a hexagonal prism and a necked jar
-    "product_hexprism": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)], "sections": 6},
+    # products (Factory Packing, novel split): a tub widening to a lip, and a necked jar
+    "product_tub": {"outline": [(0, 0), (0.4, 0), (0.47, 0.86), (0.5, 0.88), (0.5, 1), (0, 1)]},
     "product_jar": {"outline": [(0, 0), (0.5, 0), (0.5, 0.72), (0.36, 0.84), (0.36, 1), (0, 1)], "sections": 16},
 }
 for _profile in MESH_PROFILES.values():

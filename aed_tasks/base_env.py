@@ -39,7 +39,9 @@ if TYPE_CHECKING:
     from aed_tasks.expert import ErrorSpec, ScriptedExpert
 
 ROBOT_BASE = (-0.615, 0.0, 0.0)
-REST_QPOS = np.array([0.0, np.pi / 8, 0.0, -np.pi * 5 / 8, 0.0, np.pi * 3 / 4, np.pi / 4, 0.04, 0.04])
+# Rest pose: the hand points down with its TCP 0.36 m in front of the base and 0.35 m up,
+# behind and above every task object, so that neither camera sees it in front of one at reset.
+REST_QPOS = np.array([0.0, -0.6, 0.0, -2.6, 0.0, 2.0, np.pi / 4, 0.04, 0.04])
 # Camera poses (eye, target): `front` faces the robot across the table; `front_shift` is the
 # viewpoint-change experiment's camera, moved back, sideways and up, away from the table.
 CAMERAS: dict[str, tuple[list[float], list[float]]] = {
@@ -47,7 +49,7 @@ CAMERAS: dict[str, tuple[list[float], list[float]]] = {
     "front_shift": ([0.82, 0.32, 0.78], [-0.12, 0.0, 0.02]),
 }
 IMAGE_WIDTH, IMAGE_HEIGHT = 160, 120
-DEMONSTRATOR_TINT = (0.95, 0.55, 0.1, 1.0)  # the expert's Panda is orange, the agent's stays white
+DEMONSTRATOR_TINT = (0.6, 0.9, 0.1, 1.0)  # the expert's Panda is lime (no split colour), the agent's stays white
 
 
 class AEDBaseEnv(BaseEnv):
@@ -60,6 +62,11 @@ class AEDBaseEnv(BaseEnv):
         demonstrator: render the expert's appearance (a recoloured Panda) instead of the agent's.
         cameras: which of `front` and `front_shift` to render as sensors.
         shadows: directional shadows of the key light (on by default, as in the paper).
+        terminate_on_success: end the episode (`terminated`) on the first success step, as
+            ManiSkill does; with False only an irrecoverable failure terminates. Either way
+            `info["success"]` is latched: once the task succeeded it stays True until reset.
+
+    One env per process: the tasks build and randomise a single scene, so `num_envs` must be 1.
     """
 
     SUPPORTED_ROBOTS: ClassVar[list[str]] = ["panda"]
@@ -87,8 +94,15 @@ class AEDBaseEnv(BaseEnv):
         shadows: bool = True,
         robot_uids: str = "panda",
         robot_init_qpos_noise: float = 0.02,
+        terminate_on_success: bool = True,
         **kwargs: Any,
     ):
+        num_envs = kwargs.get("num_envs", args[0] if args else 1)
+        if num_envs != 1:
+            raise ValueError(
+                f"num_envs={num_envs}: AED tasks run one env per process; "
+                "use separate processes (aed collect --workers N)"
+            )
         self.split = check_split(split)
         self.catalogue = self.get_catalogue(split)
         if env_index is not None:
@@ -100,6 +114,8 @@ class AEDBaseEnv(BaseEnv):
         self.demonstrator = demonstrator
         self.camera_names = tuple(cameras)
         self.robot_init_qpos_noise = robot_init_qpos_noise
+        self.terminate_on_success = bool(terminate_on_success)
+        self._succeeded = torch.zeros(1, dtype=torch.bool)  # the latch, reset with each episode
         self.env_spec: EnvironmentSpec = self.catalogue[env_index or 0]
         self._requested_env_index: int | None = None
         kwargs.setdefault("obs_mode", "rgbd")
@@ -212,6 +228,7 @@ class AEDBaseEnv(BaseEnv):
         qpos = REST_QPOS + rng.normal(0, self.robot_init_qpos_noise, len(REST_QPOS)) * (np.arange(9) < 7)
         self.agent.reset(torch.as_tensor(qpos, dtype=torch.float32)[None])
         self.agent.robot.set_pose(sapien.Pose(p=list(ROBOT_BASE)))
+        self._succeeded = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
         self._initialize_task(rng)
 
     def _initialize_task(self, rng: np.random.Generator) -> None:
@@ -229,6 +246,20 @@ class AEDBaseEnv(BaseEnv):
     def evaluate(self) -> dict[str, torch.Tensor]:
         """success, fail (irrecoverable) and stage (sub-goals completed so far)."""
         raise NotImplementedError
+
+    def get_info(self) -> dict:
+        """ManiSkill's info with `success` latched: the expert's retreat and rest after the
+        task, and whatever a policy does next, leave a succeeded episode succeeded."""
+        info = super().get_info()
+        self._succeeded = self._succeeded | info["success"]
+        info["success"] = self._succeeded.clone()
+        return info
+
+    def step(self, action: Any) -> tuple:
+        obs, reward, terminated, truncated, info = super().step(action)
+        if not self.terminate_on_success:
+            terminated = info["fail"].clone()
+        return obs, reward, terminated, truncated, info
 
     def objects_off_table(self, *actors: Actor) -> torch.Tensor:
         """True where any of the actors fell from the table (an irrecoverable failure)."""
@@ -256,6 +287,16 @@ class AEDBaseEnv(BaseEnv):
     def expert_script(self, expert: ScriptedExpert, error: ErrorSpec | None) -> None:
         """Drive `expert` through the task; at the critical moment of `error`, deviate."""
         raise NotImplementedError
+
+    def error_outcome(self, kind: str) -> str:
+        """'' when the episode's state now shows the named failure `kind`, else why not.
+
+        Tasks override this with a check of each kind's outcome (e.g. `closes_both` closed both
+        drawers); this default accepts any unsuccessful ending.
+        """
+        if kind not in self.error_kinds:
+            raise ValueError(f"unknown error kind {kind!r} for {self.task_name}; known: {list(self.error_kinds)}")
+        return "the task succeeded" if bool(self.get_info()["success"].any()) else ""
 
 
 def sample_free_xy(

@@ -25,6 +25,54 @@ DISTRACTOR_SHAPES: dict[str, tuple[str, ...]] = {
     "novel": ("cylinder", "bottle", "cone", "spindle"),
 }
 
+# How each shape is drawn: its generator and the form it gives. Within one object role, base
+# and novel shapes share no entry (tests/test_catalogues.py); a revolved mesh ("revolve:")
+# is also compared by its profile in `aed_tasks.assets.MESH_PROFILES`, sections aside.
+SHAPE_GENERATORS: dict[str, str] = {
+    # distractors
+    "box": "box", "ball": "sphere", "capsule": "capsule", "vase": "revolve:vase",
+    "cylinder": "cylinder", "bottle": "revolve:bottle", "cone": "revolve:cone", "spindle": "revolve:spindle",
+    # Close Drawer: cabinets and drawer handles
+    "cabinet_plain": "cabinet:bare shell", "cabinet_plinth": "cabinet:shell on a recessed plinth",
+    "cabinet_legged": "cabinet:shell on four legs", "cabinet_crowned": "cabinet:shell with face frame and crown",
+    "drawer_bar": "handle:horizontal bar on two posts", "drawer_knob": "handle:one cylindrical knob",
+    "drawer_ledge": "handle:thin full-width ledge", "drawer_vertical_bar": "handle:vertical bar on two posts",
+    "drawer_twin_balls": "handle:two balls on stems", "drawer_block": "handle:one thick block",
+    # Press Button
+    "button_housing_block": "box", "button_housing_puck": "cylinder",
+    "button_housing_hex": "prism:hexagon", "button_housing_plinth": "stepped boxes",
+    "button_cap_disc": "cylinder", "button_cap_mushroom": "stacked cylinders (neck, head)",
+    "button_cap_square": "box", "button_cap_dome": "revolve:button_cap_dome",
+    # Pick & Place
+    "mug_cylinder": "revolve:mug_cylinder", "cup_tapered": "revolve:cup_tapered",
+    "mug_barrel": "revolve:mug_barrel", "cup_waisted": "revolve:cup_waisted",
+    "bowl_round": "revolve:bowl_round", "bowl_straight": "revolve:bowl_straight",
+    "bowl_basin": "revolve:bowl_basin", "bowl_lipped": "revolve:bowl_lipped",
+    # Move Glass Cup
+    "glass_tumbler": "revolve:glass_tumbler", "glass_tapered": "revolve:glass_tapered",
+    "glass_octagonal": "revolve:glass_octagonal", "glass_round_bottom": "revolve:glass_round_bottom",
+    "coaster_round": "cylinder", "coaster_square": "box",
+    "coaster_hexagon": "prism:hexagon", "coaster_oval": "prism:oval",
+    # Organize Table
+    "item_block": "box", "item_book": "box with covers and pages",
+    "item_canister": "lying drum with lids", "item_loaf": "box under a half drum roof",
+    "shelf_slab": "shelf:solid side slabs", "shelf_ledge": "shelf:slabs with a front ledge",
+    "shelf_posts": "shelf:square posts", "shelf_columns": "shelf:round columns",
+    # Back to Box
+    "magic_cube_3x3": "cube:3x3 sticker grid", "die_pips": "cube:pips",
+    "magic_cube_2x2": "cube:2x2 sticker grid", "die_numbers": "cube:numerals",
+    "storage_box_plain": "open box:plain", "storage_box_rimmed": "open box:rim band",
+    "storage_box_handles": "open box:handle slots", "storage_box_footed": "open box:on feet",
+    "bookshelf_stepped": "bookshelf:stepped side panels", "bookshelf_ladder": "bookshelf:ladder frame",
+    "bookshelf_posts": "bookshelf:posts, books lying flat", "bookshelf_cabinet": "bookshelf:lidded cabinet",
+    # Factory Packing
+    "box_plain": "packing box:plain", "box_flanged": "packing box:flanged rim",
+    "box_handled": "packing box:end handles", "box_cornered": "packing box:corner posts",
+    "product_carton": "box", "product_can": "cylinder",
+    "product_tub": "revolve:product_tub", "product_jar": "revolve:product_jar",
+    "conveyor_railed": "conveyor:side rails", "conveyor_rollered": "conveyor:end drums and motor housing",
+}  # fmt: skip
+
 
 @dataclass(frozen=True)
 class MaterialSpec:

@@ -8,11 +8,26 @@ IK find the way; it never falls back to RRT, whose unseeded sampling (OMPL, pino
 make episodes differ between runs of the same seed.
 With an `ErrorSpec`, the task's script deviates at the critical moment (grasp, release,
 push...) and calls `mark_error()`: labels are 0 before that step and 1 from it on.
+
+The onset is the visible departure. The clean and the intervened episode of one seed (and
+environment) share one random stream, `expert.rng`, so they are the same episode until the
+intervened script departs from what the clean expert would do from the same state. A task's
+`expert_script` keeps this true by two rules:
+- before the onset, the intervened script draws from `expert.rng` exactly the values the
+  clean script draws, in the same order; values only an error needs are drawn from
+  `expert.error_rng` (a stream of their own, any time) or from `expert.rng` at or after
+  the onset;
+- `mark_error()` is called right before the first step whose action differs from the clean
+  expert's action, never earlier (e.g. a press that stops short is marked where it stops, not
+  where it starts). `move_to(..., stop_before=...)` follows the clean motion and stops where
+  an error departs from it.
+`tests/test_departure.py` checks both for every task and kind (`departure()` measures it).
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -34,7 +49,11 @@ class ErrorSpec:
 
 
 class EpisodeOver(Exception):
-    """The env terminated (success or irrecoverable failure): the script stops early."""
+    """The time limit cut the episode (`truncated`): the script stops where it is.
+
+    Termination (success, irrecoverable failure) does not stop a script: successes and
+    failures alike run to the script's end, retreat and rest, so that no ending is a cue.
+    """
 
 
 def _to_numpy(x: Any) -> np.ndarray:
@@ -46,11 +65,15 @@ class ScriptedExpert:
 
     Args:
         env: an AED env (possibly wrapped, e.g. by `RecordEpisode`), already reset.
-        rng: the episode's generator for path and speed variation.
+        rng: the episode's generator for path and speed variation, shared by the clean and
+            every intervened episode of one seed (see the module docstring).
+        error_rng: the generator of values only an injected error needs (its own stream).
         speed: cruise speed in metres per control step (the episode's speed profile).
     """
 
-    def __init__(self, env: Any, rng: np.random.Generator, speed: float):
+    def __init__(
+        self, env: Any, rng: np.random.Generator, speed: float, error_rng: np.random.Generator | None = None
+    ):
         from mani_skill.examples.motionplanning.panda.motionplanner import (
             PandaArmMotionPlanningSolver,
         )
@@ -58,6 +81,7 @@ class ScriptedExpert:
         self.env = env
         self.base = env.unwrapped
         self.rng = rng
+        self.error_rng = np.random.default_rng(0) if error_rng is None else error_rng
         self.speed = speed
         solver = PandaArmMotionPlanningSolver(
             env, debug=False, vis=False, base_pose=self.base.agent.robot.pose,
@@ -72,7 +96,7 @@ class ScriptedExpert:
         self.fail: list[bool] = []
         self.stage: list[int] = []
         self.observations: list[Any] = []
-        self.terminated = False
+        self.truncated = False  # the env's time limit was reached
 
     # --- state ------------------------------------------------------------------------------
     @property
@@ -90,18 +114,19 @@ class ScriptedExpert:
 
     # --- primitives -------------------------------------------------------------------------
     def step(self, delta: np.ndarray, gripper: float | None = None) -> None:
-        if self.terminated:
+        """One control step; `terminated` is ignored (the script goes on), truncation ends it."""
+        if self.truncated:
             raise EpisodeOver
         if gripper is not None:
             self.gripper = gripper
         action = np.concatenate([np.clip(delta / MAX_DELTA, -1, 1), [self.gripper]]).astype(np.float32)
-        obs, _, terminated, truncated, info = self.env.step(action)
+        obs, _, _, truncated, info = self.env.step(action)
         self.actions.append(action)
         self.success.append(bool(_to_numpy(info["success"]).reshape(-1)[0]))
         self.fail.append(bool(_to_numpy(info["fail"]).reshape(-1)[0]))
         self.stage.append(int(_to_numpy(info["stage"]).reshape(-1)[0]))
         self.observations.append(obs)
-        self.terminated = bool(_to_numpy(terminated).reshape(-1)[0] or _to_numpy(truncated).reshape(-1)[0])
+        self.truncated = bool(_to_numpy(truncated).reshape(-1)[0])
 
     def plan(self, target: np.ndarray) -> np.ndarray:
         """TCP positions (N, 3) along an mplib screw plan from here to `target` (top-down gripper).
@@ -124,17 +149,29 @@ class ScriptedExpert:
             path.append(model.get_link_pose(link)[:3] + origin)
         return np.asarray([self.tcp, *path, target])
 
-    def move_to(self, target: np.ndarray, speed: float | None = None, tol: float = 0.006, settle: int = 12) -> None:
-        """Follow a planned path to `target` at `speed` (m/step), then settle within `tol`."""
+    def move_to(
+        self, target: np.ndarray, speed: float | None = None, tol: float = 0.006, settle: int = 12,
+        stop_before: Callable[[np.ndarray], bool] | None = None,
+    ) -> bool:  # fmt: skip
+        """Follow a planned path to `target` at `speed` (m/step), then settle within `tol`.
+
+        With `stop_before`, stop short before the first waypoint for which it is True and
+        return True (an error's departure from the clean path); else return False.
+        """
         target = np.asarray(target, dtype=np.float64)
         waypoints = resample(self.plan(target), speed or self.speed)
         for waypoint in waypoints:
+            if stop_before is not None and stop_before(waypoint):
+                return True
             self.step(waypoint - self.tcp)
         for _ in range(settle):
             error = target - self.tcp
             if np.linalg.norm(error) < tol:
                 break
+            if stop_before is not None and stop_before(target):
+                return True
             self.step(error)
+        return False
 
     def move_by(self, offset: np.ndarray, speed: float | None = None, **kwargs: Any) -> None:
         self.move_to(self.tcp + np.asarray(offset, dtype=np.float64), speed, **kwargs)
@@ -190,24 +227,39 @@ def solve(
         raise ValueError(f"suboptimal episodes of {base.task_name} need error=None and recoverable_errors")
     options = {} if env_index is None else {"env_index": env_index}
     obs, _ = env.reset(seed=seed, options=options)
-    stream = 0 if error is None else 1 + base.error_kinds.index(error.kind)
-    rng = np.random.default_rng([seed, stream, int(suboptimal)])
-    expert = ScriptedExpert(env, rng, expert_speed(rng, base.demonstrator))
+    # one stream for the clean and every intervened episode of a seed: identical up to the onset
+    rng = np.random.default_rng([seed, 0, int(suboptimal)])
+    error_rng = np.random.default_rng([seed, 1 + (base.error_kinds.index(error.kind) if error else 0)])
+    expert = ScriptedExpert(env, rng, expert_speed(rng, base.demonstrator), error_rng)
+    first_attempt = None
     try:
         if suboptimal:
             first_try = ErrorSpec(str(rng.choice(base.recoverable_errors)))
             base.expert_script(expert, first_try)
+            first_attempt = (expert.steps, first_try.kind, _first_attempt_problem(base, expert, first_try.kind))
             expert.onset = None  # a demonstration: the failed attempt is part of it, not an error
             base.expert_script(expert, None)
         else:
             base.expert_script(expert, error)
-    except EpisodeOver:
-        pass
+    except EpisodeOver:  # the time limit cut the script: the caller decides (collection rejects it)
+        logger.debug("%s seed %d: the time limit cut the script at step %d", base.task_name, seed, expert.steps)
     if error is not None and expert.onset is None:
         raise RuntimeError(f"{base.task_name} script never marked the onset of error {error.kind!r}")
     episode = _episode(base, seed, error, expert, obs)
     episode.suboptimal = suboptimal
+    if suboptimal and first_attempt is not None:
+        episode.first_attempt_steps, episode.first_attempt_kind, episode.first_attempt_problem = first_attempt
+    episode.truncated = expert.truncated
+    if error is not None:
+        episode.outcome_problem = base.error_outcome(error.kind)
     return episode
+
+
+def _first_attempt_problem(base: Any, expert: ScriptedExpert, kind: str) -> str:
+    """'' when a sub-optimal demonstration's first attempt failed, in its named way, else why not."""
+    if any(expert.success):
+        return "the first attempt succeeded"
+    return base.error_outcome(kind)
 
 
 def _episode(base: Any, seed: int, error: ErrorSpec | None, expert: ScriptedExpert, first_obs: Any) -> Episode:
@@ -234,3 +286,104 @@ def _episode(base: Any, seed: int, error: ErrorSpec | None, expert: ScriptedExpe
         error_kind=None if error is None else error.kind, error_onset=expert.onset,
         rgb=rgb, depth=depth, expert_speed=expert.speed,
     )  # fmt: skip
+
+
+# --- the departure check -------------------------------------------------------------------
+DEPARTURE_SAME = 1e-4  # metres: "the same" before the onset (the sim is deterministic: ~0)
+DEPARTURE_APART = 0.005  # metres: "measurably different" after it
+DEPARTURE_WINDOW = 5  # steps after the onset within which the episodes must differ
+
+
+@dataclass
+class Trace:
+    """Per step: the action (T, 4) and, after it, the TCP position and the positions of every
+    part of the task's objects (actors, and every link of articulations: a drawer's panel, a
+    button's cap), as `points` (T, P, 3), the TCP first."""
+
+    actions: np.ndarray
+    points: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+
+def trace_episode(
+    env: Any, seed: int, error: ErrorSpec | None = None, env_index: int | None = None
+) -> tuple[Episode, Trace]:
+    """`solve()` the episode while recording its `Trace` (for `departure`)."""
+    import gymnasium as gym
+
+    class _Recorder(gym.Wrapper):
+        def __init__(self, inner: Any):
+            super().__init__(inner)
+            self.points: list[np.ndarray] = []
+            self.actions: list[np.ndarray] = []
+
+        def step(self, action: Any):
+            result = self.env.step(action)
+            self.points.append(_task_points(self.env.unwrapped))
+            self.actions.append(np.asarray(action, dtype=np.float64).reshape(-1))
+            return result
+
+    recorder = _Recorder(env)
+    episode = solve(recorder, seed, error, env_index)
+    return episode, Trace(np.asarray(recorder.actions).reshape(-1, 4), np.asarray(recorder.points))
+
+
+def _task_points(base: Any) -> np.ndarray:
+    points = [_to_numpy(base.agent.tcp.pose.p[0])]
+    for entity in base.state_entities().values():
+        links = entity.get_links() if hasattr(entity, "get_links") else [entity]
+        points += [_to_numpy(link.pose.p[0]) for link in links]
+    return np.asarray(points, dtype=np.float64)
+
+
+@dataclass
+class Departure:
+    """How an intervened episode compares with the clean one of the same seed.
+
+    `before`: the largest distance (m) of any point, or of any commanded TCP motion, before
+    the onset (should be 0: the sim is deterministic); `acts`: whether the action at the onset
+    differs (the intervention starts there, not earlier); `after`: steps from the onset to the
+    first step where a point is more than `DEPARTURE_APART` away or the gripper command differs
+    (None: not within the window).
+    """
+
+    onset: int
+    before: float
+    acts: bool
+    after: int | None
+
+    @property
+    def problem(self) -> str:
+        """'' when the labels mark the visible departure, else why not."""
+        if self.before > DEPARTURE_SAME:
+            return f"differs by {self.before * 1000:.2f} mm before the onset (step {self.onset})"
+        if not self.acts:
+            return f"the action at the onset (step {self.onset}) is the clean expert's"
+        if self.after is None:
+            return f"no measurable difference within {DEPARTURE_WINDOW} steps of the onset (step {self.onset})"
+        return ""
+
+
+def departure(clean: Trace, intervened: Trace, onset: int, window: int = DEPARTURE_WINDOW) -> Departure:
+    """Compare an intervened episode's trace with the clean one's around `onset`.
+
+    Step t of a trace is the state after action t, so action `onset` (the first intervened
+    one) shows first at index `onset`; everything before must be the same.
+    """
+    if clean.points.shape[1:] != intervened.points.shape[1:]:
+        raise ValueError(f"traces of different scenes: {clean.points.shape} vs {intervened.points.shape}")
+    if not 0 <= onset < len(intervened):
+        raise ValueError(f"onset {onset} outside the intervened episode of {len(intervened)} steps")
+    n = min(len(clean), len(intervened))
+    gap = np.linalg.norm(clean.points[:n] - intervened.points[:n], axis=-1).max(axis=-1)
+    moves = np.linalg.norm(clean.actions[:n, :3] - intervened.actions[:n, :3], axis=-1) * MAX_DELTA
+    gripper_differs = clean.actions[:n, 3] != intervened.actions[:n, 3]
+    before = float(max(gap[:onset].max(initial=0.0), moves[:onset].max(initial=0.0)))
+    before = before if not gripper_differs[:onset].any() else float("inf")
+    acts = onset >= n or bool(moves[onset] > 1e-6 or gripper_differs[onset])
+    apart = (gap > DEPARTURE_APART) | gripper_differs
+    # a clean episode that ended while the intervened one goes on has departed too
+    after = next((k for k in range(window + 1) if onset + k >= n or apart[onset + k]), None)
+    return Departure(onset, before, acts, after)

@@ -1,8 +1,11 @@
 """Expert success and error-injection rates of tasks, over seeds spread across splits.
 
 Clean episodes alternate base / novel environments and spread over each catalogue; each
-error kind runs the same way. Physics only (obs_mode="state"): rendering changes nothing
-about success. Writes JSON and prints a Markdown table.
+error kind runs the same way. Per error kind: how often the episode failed, failed in its
+named way (the task's `error_outcome`, not cut by the time limit), and departed from its clean
+twin (same seed and environment) exactly at the labelled onset (`aed_tasks.expert.departure`).
+Physics only (obs_mode="state"): rendering changes nothing about success. Writes JSON and
+prints a Markdown table.
 
     python scripts/expert_stats.py --tasks PickPlace --seeds 40 --error-seeds 20
     python scripts/expert_stats.py --workers 2          # every task, two processes
@@ -24,7 +27,8 @@ import tyro
 
 import aed_tasks
 from aed_eval.logs import setup_logging
-from aed_tasks import ErrorSpec, solve
+from aed_tasks import ErrorSpec
+from aed_tasks.expert import departure, trace_episode
 
 logger = logging.getLogger("expert_stats")
 
@@ -48,30 +52,47 @@ def spread(n: int, size: int) -> list[int]:
     return [int(k * size / max(n, 1)) % size for k in range(n)]
 
 
-def measure(task: str, kind: str | None, n: int, first_seed: int, envs: dict) -> dict:
-    outcomes, onsets_ok, lengths, failures = [], [], [], []
+def episodes(n: int, envs: dict, first_seed: int) -> list[tuple[str, int, int]]:
+    """(split, seed, env index) of n episodes: half base, half novel, spread over each catalogue."""
     per_split = {"base": spread((n + 1) // 2, len(envs["base"].unwrapped.catalogue)),
                  "novel": spread(n // 2, len(envs["novel"].unwrapped.catalogue))}  # fmt: skip
+    return [(split, first_seed + 2 * k + (split == "novel"), index)
+            for split, indices in per_split.items() for k, index in enumerate(indices)]  # fmt: skip
+
+
+def measure(kind: str | None, runs: list[tuple[str, int, int]], envs: dict, clean: dict) -> dict:
+    """Clean (kind None) or one error kind over `runs`. Error episodes are checked for their
+    named outcome and against their clean twin (same seed and environment, from `clean`, a cache
+    of clean traces filled on demand) for the departure at the onset."""
+    outcomes, named, departs, lengths, failures, problems = [], [], [], [], [], []
+    truncated = 0
     start = time.perf_counter()
-    for split, indices in per_split.items():
-        for k, env_index in enumerate(indices):
-            seed = first_seed + 2 * k + (split == "novel")
-            ep = solve(envs[split], seed, ErrorSpec(kind) if kind else None, env_index=env_index)
-            outcomes.append(ep.succeeded)
-            lengths.append(len(ep))
-            if kind is not None:
-                onset = ep.error_onset
-                onsets_ok.append(onset is not None and not ep.error_label[:onset].any() and ep.error_label[onset:].all())
-            elif not ep.succeeded:
+    for split, seed, env_index in runs:
+        ep, trace = trace_episode(envs[split], seed, ErrorSpec(kind) if kind else None, env_index)
+        outcomes.append(ep.succeeded)
+        lengths.append(len(ep))
+        truncated += ep.truncated
+        if kind is None:
+            clean[(split, seed, env_index)] = trace
+            if not ep.succeeded:
                 failures.append((split, env_index, seed))
-    rate = float(np.mean(outcomes))
+            continue
+        named.append(not ep.outcome_problem and not ep.truncated)
+        if (split, seed, env_index) not in clean:
+            clean[(split, seed, env_index)] = trace_episode(envs[split], seed, None, env_index)[1]
+        problem = departure(clean[(split, seed, env_index)], trace, ep.error_onset).problem
+        departs.append(not problem)
+        for what in filter(None, (ep.outcome_problem, problem)):
+            problems.append(f"{split} env {env_index} seed {seed}: {what}")
     return {
         "kind": kind or "clean", "episodes": len(outcomes),
-        "success_rate": rate, "target": "success" if kind is None else "failure",
-        "labels_switch_at_onset": float(np.mean(onsets_ok)) if onsets_ok else None,
+        "success_rate": float(np.mean(outcomes)), "target": "success" if kind is None else "failure",
+        "named_failure_rate": float(np.mean(named)) if named else None,
+        "departure_rate": float(np.mean(departs)) if departs else None,
+        "truncated": int(truncated),
         "mean_length": float(np.mean(lengths)) if lengths else 0.0,
         "seconds_per_episode": (time.perf_counter() - start) / max(len(outcomes), 1),
-        "unsuccessful_clean": failures if kind is None else [],
+        "unsuccessful_clean": failures, "problems": problems,
     }  # fmt: skip
 
 
@@ -80,13 +101,19 @@ def measure_task(task: str, cfg: Config) -> list[dict]:
     setup_logging()
     cls = aed_tasks.get_task(task)
     envs = {s: gym.make(aed_tasks.env_id(task, s), obs_mode="state") for s in ("base", "novel")}
-    results = [measure(task, None, cfg.seeds, cfg.first_seed, envs)]
-    results += [measure(task, kind, cfg.error_seeds, cfg.first_seed, envs) for kind in cls.error_kinds]
+    clean: dict = {}
+    results = [measure(None, episodes(cfg.seeds, envs, cfg.first_seed), envs, clean)]
+    error_runs = episodes(cfg.error_seeds, envs, cfg.first_seed)
+    results += [measure(kind, error_runs, envs, clean) for kind in cls.error_kinds]
     for env in envs.values():
         env.close()
     (cfg.out / f"{task}.json").write_text(json.dumps({"task": task, "results": results}, indent=2))
     logger.info("%s done", task)
     return results
+
+
+def percent(rate: float | None) -> str:
+    return "" if rate is None else f"{rate:.0%}"
 
 
 def main(cfg: Config) -> None:
@@ -99,10 +126,16 @@ def main(cfg: Config) -> None:
     for task, results in zip(tasks, per_task, strict=True):
         for r in results:
             rate = r["success_rate"] if r["kind"] == "clean" else 1 - r["success_rate"]
-            labels = "" if r["labels_switch_at_onset"] is None else f"{r['labels_switch_at_onset']:.0%}"
-            rows.append(f"| {task} | {r['kind']} | {r['episodes']} | {rate:.0%} | {labels} | {r['mean_length']:.0f} | {r['seconds_per_episode']:.1f} |")
-    table = "| task | episodes of | n | expert success (clean) / failure (error) | labels at onset | mean steps | s/episode |\n"
-    table += "|---|---|---|---|---|---|---|\n" + "\n".join(rows)
+            rows.append(
+                f"| {task} | {r['kind']} | {r['episodes']} | {rate:.0%} | {percent(r['named_failure_rate'])} "
+                f"| {percent(r['departure_rate'])} | {r['truncated']} | {r['mean_length']:.0f} "
+                f"| {r['seconds_per_episode']:.1f} |"
+            )
+    table = (
+        "| task | episodes of | n | expert success (clean) / failure (error) | failed as named "
+        "| departs at the onset | cut by the time limit | mean steps | s/episode |\n"
+    )
+    table += "|---|---|---|---|---|---|---|---|---|\n" + "\n".join(rows)
     (cfg.out / "expert_stats.md").write_text(table + "\n")
     print(table)
 

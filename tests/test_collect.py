@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 import torch
 
-from aed_tasks import trajectory
-from aed_eval.collect import CollectConfig, run_collection
+from aed_eval.collect import CollectConfig, CollectError, check_retry_rate, retries, run_collection
 from aed_eval.data_info import summarize
 from aed_models.data import EnvironmentIterations, load_episodes
+from aed_tasks import trajectory
 
 AED = str(Path(sys.executable).with_name("aed"))
 # Physics only (fast): two environments, two successes and two failures each, one episode a shard.
@@ -108,21 +108,25 @@ def test_training_batches_of_real_episodes_keep_labels_aligned(rgbd_collection):
 
 
 @pytest.mark.slow
-def test_maniskill_replay_tool_reads_the_collection(rgbd_collection, tmp_path):
-    shard = tmp_path / "agent_failure.h5"
-    for suffix in (".h5", ".json"):
-        shutil.copy(rgbd_collection / f"agent_failure_env000_0000{suffix}", shard.with_suffix(suffix))
-    for mode in ("--use-env-states", "--no-use-env-states"):
+@pytest.mark.parametrize("mode", ["--use-env-states", "--no-use-env-states"])
+def test_maniskill_replay_tool_reproduces_the_episodes(rgbd_collection, tmp_path, mode):
+    """ManiSkill's replay reads our shards; replaying the actions alone reproduces each outcome."""
+    for stem in ("agent_success_env000_0000", "agent_failure_env000_0000"):
+        shard = tmp_path / f"{stem}.h5"
+        for suffix in (".h5", ".json"):
+            shutil.copy(rgbd_collection / f"{stem}{suffix}", shard.with_suffix(suffix))
         result = subprocess.run(
             [sys.executable, "-m", "mani_skill.trajectory.replay_trajectory", "--traj-path", str(shard), mode,
              "--obs-mode", "state", "--allow-failure", "--save-traj"],
             capture_output=True, text=True, timeout=300,
         )  # fmt: skip
         assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-4000:]
-    replayed = next(tmp_path.glob("agent_failure.state.*.h5"))
-    with h5py.File(shard, "r") as original, h5py.File(replayed, "r") as copy:
-        assert sorted(copy) == sorted(original)
-        np.testing.assert_array_equal(copy["traj_0/actions"][()], original["traj_0/actions"][()])
+        replayed = next(tmp_path.glob(f"{stem}.state.*.h5"))
+        with h5py.File(shard, "r") as original, h5py.File(replayed, "r") as copy:
+            assert sorted(copy) == sorted(original)
+            for traj in original:
+                np.testing.assert_array_equal(copy[f"{traj}/actions"][()], original[f"{traj}/actions"][()])
+                assert bool(copy[f"{traj}/success"][-1]) == bool(original[f"{traj}/success"][-1]), traj
 
 
 def test_data_info_counts_roles_and_kinds(rgbd_collection):
@@ -153,11 +157,42 @@ def test_killed_collection_resumes_to_the_same_episodes(state_collection, tmp_pa
     committed = len(list(out.glob("agent_*.json")))
     assert 2 <= committed < 8, f"the kill came after {committed} of 8 shards"
     (out / "agent_success_env001_0001.h5.tmp").write_bytes(b"half a shard")  # as a kill mid-write leaves
+    (out / "agent_failure_env001_0001.h5").write_bytes(b"renamed, json never written")  # a kill before the commit
 
     summary = run_collection(CollectConfig(**STATE_RUN, out=out))
     assert summary.skipped == committed and summary.episodes == 8 - committed
     assert not list(out.glob("*.tmp"))
     assert digest(out) == digest(state_collection)
+
+
+@pytest.mark.slow
+def test_killed_rgbd_collection_resumes_to_the_same_frames(rgbd_collection, tmp_path):
+    """The same on rendered frames: every RGB-D array of the resumed run equals the uninterrupted one's."""
+    out = tmp_path / "interrupted"
+    args = [AED, "collect", "--task", "PickPlace", "--split", "base", "--envs", "0", "--num-demos", "1",
+            "--num-successes", "1", "--num-failures", "2", "--shard-size", "2", "--no-progress", "--out", str(out)]  # fmt: skip
+    process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not list(out.glob("*.json")) or len(list(out.glob("*.json"))) < 2:  # the manifest and a shard
+            assert process.poll() is None, "aed collect ended before it could be killed"
+            assert time.monotonic() < deadline, "aed collect committed nothing in time"
+            time.sleep(0.05)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+    run_collection(CollectConfig(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
+                                 num_failures=2, shard_size=2, out=out, progress=False))  # fmt: skip
+    resumed, original = digest(out), digest(rgbd_collection)
+    assert resumed == original
+    assert any("obs/sensor_data/front/rgb" in name for _, hashes in resumed.values() for name, _ in hashes)
+
+
+@pytest.mark.slow
+def test_worker_count_does_not_change_the_frames(rgbd_collection, tmp_path):
+    run_collection(CollectConfig(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
+                                 num_failures=2, shard_size=2, out=tmp_path, workers=2, progress=False))  # fmt: skip
+    assert digest(tmp_path) == digest(rgbd_collection)
 
 
 @pytest.mark.slow
@@ -183,7 +218,7 @@ def test_rerun_of_a_finished_collection_records_nothing(state_collection):
     assert digest(state_collection) == before
 
 
-@pytest.mark.parametrize("damage", ["json_garbage", "h5_truncated", "foreign_file", "other_settings"])
+@pytest.mark.parametrize("damage", ["json_garbage", "h5_truncated", "h5_same_size", "foreign_file", "other_settings"])
 def test_corrupt_or_foreign_files_are_named_and_nothing_is_lost(state_collection, tmp_path, damage):
     root = tmp_path / "copy"
     shutil.copytree(state_collection, root)
@@ -195,6 +230,11 @@ def test_corrupt_or_foreign_files_are_named_and_nothing_is_lost(state_collection
         data = victim.with_suffix(".h5").read_bytes()
         victim.with_suffix(".h5").write_bytes(data[: len(data) // 2])
         named = victim.with_suffix(".h5").name
+    elif damage == "h5_same_size":  # size unchanged: only the sha256 tells
+        data = bytearray(victim.with_suffix(".h5").read_bytes())
+        data[len(data) // 2] ^= 0xFF
+        victim.with_suffix(".h5").write_bytes(bytes(data))
+        named = victim.with_suffix(".h5").name
     elif damage == "foreign_file":
         (root / "notes.txt").write_text("not a shard")
         named = "notes.txt"
@@ -205,6 +245,22 @@ def test_corrupt_or_foreign_files_are_named_and_nothing_is_lost(state_collection
     with pytest.raises(trajectory.CollectionError, match=named.replace(".", r"\.")):
         run_collection(cfg)
     assert {p.name: p.read_bytes() for p in root.iterdir()} == files, "a failed run changed the folder"
+
+
+def test_retries_are_counted_shown_and_fail_loudly(state_collection, tmp_path):
+    root = tmp_path / "copy"
+    shutil.copytree(state_collection, root)
+    assert summarize(root)["retries"]["rejected"] == retries(root)[1]
+    shard = root / "agent_failure_env000_0000.json"  # retries live in the json: the h5's hash holds
+    body = json.loads(shard.read_text())
+    body["episodes"][0].update(attempt=3, rejected=["not a 'no_grasp' failure: the mug moved 4 cm"] * 3)
+    shard.write_text(json.dumps(body))
+    info = summarize(root)
+    assert info["retries"]["rejected"] == 3 + retries(state_collection)[1]
+    assert "the mug moved 4 cm" in next(iter(info["retries"]["problems"]))
+    with pytest.raises(CollectError, match=r"rejected tries for 8 episodes .* > max_retry_rate=20%"):
+        check_retry_rate(root, 0.2)
+    check_retry_rate(root, 1.0)
 
 
 def test_config_errors_name_the_field():

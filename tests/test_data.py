@@ -13,7 +13,6 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from aed_tasks import trajectory
 from aed_models.augment import RolloutAugment
 from aed_models.data import (
     DEPTH_SCALE_MM,
@@ -24,6 +23,7 @@ from aed_models.data import (
     load_episodes,
     to_frames,
 )
+from aed_tasks import trajectory
 from aed_tasks.episode import Episode
 
 H, W = 120, 160

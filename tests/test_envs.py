@@ -5,11 +5,15 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 from gymnasium.utils.env_checker import check_env
-from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
+from mani_skill.utils import gym_utils
+from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper as ManiSkillCPUGymWrapper
 
 import aed_tasks
 from aed_tasks.base_env import IMAGE_HEIGHT, IMAGE_WIDTH
+from aed_tasks.expert import solve
+from aed_tasks.registration import CPUGymWrapper
 
 from .conftest import ALL_IDS, ALL_TASKS
 
@@ -17,7 +21,7 @@ EXPECTED_TASKS = {"CloseDrawer", "PressButton", "PickPlace", "MoveGlassCup", "Or
 
 
 def test_ids_follow_the_naming_contract():
-    assert set(ALL_TASKS) <= EXPECTED_TASKS
+    assert set(ALL_TASKS) == EXPECTED_TASKS, "a task stopped registering, or a new one is not listed here"
     for task in ALL_TASKS:
         assert f"AED-{task}-base" in ALL_IDS and f"AED-{task}-novel" in ALL_IDS
         assert gym.spec(f"AED-{task}-novel").kwargs["split"] == "novel"
@@ -42,12 +46,77 @@ def test_make_reset_step_render(env_id, make_env):
     assert 0 <= int(info["stage"][0]) <= env.unwrapped.num_stages
 
 
+@pytest.mark.filterwarnings("ignore:.*is different from the unwrapped version")  # wrapped on purpose
 @pytest.mark.parametrize("env_id", ALL_IDS)
 def test_gymnasium_env_checker(env_id, make_env):
-    env = CPUGymWrapper(make_env(env_id, obs_mode="state", env_index=0).unwrapped)
-    check_env(env, skip_render_check=True, skip_close_check=True)  # both would rebuild the env
+    """Gymnasium's checker on the env as users make it for CPU use, closing included.
+
+    The close check rebuilds the env from `env.spec`. The render check would too, once per
+    render mode, and `human` opens a viewer window (no display here): it alone is skipped.
+    """
+    env = CPUGymWrapper(make_env(env_id, obs_mode="state", env_index=0))
+    assert isinstance(env, ManiSkillCPUGymWrapper)
+    check_env(env, skip_render_check=True)
     obs, _ = env.reset(seed=1)
     assert np.isfinite(obs).all() and obs.dtype == np.float32
+
+
+def test_an_env_is_rebuilt_from_its_spec_with_its_time_limit(make_env):
+    env = make_env("AED-PressButton-base", obs_mode="state", max_episode_steps=3)
+    assert gym_utils.find_max_episode_steps_value(env) == 3
+    again = make_env(env.spec)
+    assert again.spec.kwargs == env.spec.kwargs and gym_utils.find_max_episode_steps_value(again) == 3
+    again.reset(seed=0)
+    truncated = [again.step(np.zeros(4, np.float32))[3] for _ in range(3)]
+    assert all(isinstance(t, torch.Tensor) and t.shape == (1,) for t in truncated)  # ManiSkill's batched type
+    assert [bool(t[0]) for t in truncated] == [False, False, True]
+    default = make_env("AED-PressButton-base", obs_mode="state")
+    assert gym_utils.find_max_episode_steps_value(default) == aed_tasks.get_task("PressButton").max_episode_steps
+
+
+@pytest.mark.parametrize("terminate_on_success", [True, False])
+def test_success_is_latched_and_ends_the_episode_only_if_asked(terminate_on_success, make_env, monkeypatch):
+    env = make_env("AED-PressButton-base", obs_mode="state", env_index=0, terminate_on_success=terminate_on_success)
+    base = env.unwrapped
+    evaluate = base.evaluate
+
+    def succeeds_at_step_2():
+        info = evaluate()
+        info["success"] = base.elapsed_steps == 2  # and no longer after it
+        return info
+
+    monkeypatch.setattr(base, "evaluate", succeeds_at_step_2)
+    env.reset(seed=0)
+    steps = [env.step(np.zeros(4, np.float32)) for _ in range(4)]
+    assert [bool(info["success"][0]) for *_, info in steps] == [False, True, True, True]
+    terminated = [bool(step[2][0]) for step in steps]
+    assert terminated == [False] + [terminate_on_success] * 3
+    _, info = env.reset(seed=0)
+    assert not bool(info["success"][0]), "the latch outlived its episode"
+
+
+def test_solve_runs_the_script_to_its_end_whatever_the_termination(make_env):
+    """Successes end like failures: retreat and rest after the success, in both settings."""
+    episodes = [
+        solve(make_env("AED-PressButton-base", obs_mode="state", terminate_on_success=t), seed=3, env_index=1)
+        for t in (True, False)
+    ]
+    for episode in episodes:
+        first = int(np.argmax(episode.success))
+        assert episode.succeeded and not episode.truncated and episode.success[first:].all()
+        assert len(episode) - first > 4 + 2, "no retreat after the success"
+        assert not episode.actions[-4:, :3].any(), "the episode does not end at rest (wait(4))"
+    np.testing.assert_array_equal(episodes[0].actions, episodes[1].actions)
+
+
+def test_solve_marks_an_episode_the_time_limit_cut(make_env):
+    episode = solve(make_env("AED-PressButton-base", obs_mode="state", max_episode_steps=20), seed=3, env_index=1)
+    assert episode.truncated and len(episode) == 20
+
+
+def test_batched_simulation_is_refused_with_a_way_out():
+    with pytest.raises(ValueError, match=r"num_envs=2: AED tasks run one env per process.*--workers"):
+        gym.make("AED-PickPlace-base", num_envs=2)
 
 
 @pytest.mark.parametrize("task", ALL_TASKS)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import re
 import shutil
 import subprocess
 import sys
@@ -54,6 +56,53 @@ def test_setup_rerun_is_a_quick_no_op():
     result = subprocess.run(["bash", "scripts/setup.sh"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     assert "ready" in result.stderr
+
+
+def _setup_sh(call: str, **env: str) -> subprocess.CompletedProcess:
+    """Source scripts/setup.sh (functions only) and run `call`; apt-get is stubbed out."""
+    script = f"source scripts/setup.sh; set +e; apt-get() {{ echo APT-GET-RAN; return 1; }}; {call}"
+    return subprocess.run(["bash", "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=60, env={**os.environ, **env})
+
+
+def test_setup_takes_the_mirror_from_the_apt_sources_only(tmp_path):
+    (tmp_path / "sources.list.d").mkdir()
+    (tmp_path / "sources.list.d" / "distro.sources").write_text(
+        "Types: deb\n# URIs: http://commented.example/debian\nURIs: http://off.example/debian\n"
+        "Suites: bookworm\nEnabled: no\n\n"
+        "Types: deb-src deb\nURIs: https://mirror.example/debian http://second.example/debian\n"
+        "Suites: bookworm bookworm-updates\nComponents: main\n\n"
+        "Types: deb\nURIs: http://security.example/debian-security\nSuites: bookworm-security\n"
+    )
+    (tmp_path / "sources.list.d" / "old.sources.disabled").write_text("Types: deb\nURIs: http://x/\nSuites: trixie\n")
+    (tmp_path / "sources.list").write_text(
+        "# deb http://commented.example/debian bookworm-backports main\n"
+        "deb-src http://src.example/debian bookworm-backports main\n"
+        "deb [arch=amd64 signed-by=/usr/share/keyrings/k.gpg] http://backports.example/debian bookworm-backports main\n"
+    )
+    found = {}
+    for suite in ("bookworm", "bookworm-backports", "bookworm-security", "trixie"):
+        result = _setup_sh(f"apt_source_for_suite {suite} {tmp_path}")
+        assert result.returncode == 0, result.stderr
+        found[suite] = result.stdout.strip()
+    assert found == {
+        "bookworm": "https://mirror.example/debian", "bookworm-backports": "http://backports.example/debian",
+        "bookworm-security": "http://security.example/debian-security", "trixie": "",
+    }  # fmt: skip
+
+
+def test_no_package_mirror_is_written_out():
+    from aed_eval.doctor import VULKAN_HELP
+
+    mirror = re.compile(r"(https?|ftp)://\S*(debian|ubuntu)")
+    for path in ("README.md", "scripts/setup.sh", "aed_eval/doctor.py"):
+        assert not mirror.search((ROOT / path).read_text()), f"{path} names a package mirror"
+    assert "bookworm-backports suite" in VULKAN_HELP
+
+
+def test_setup_without_a_configured_mirror_says_what_to_add(tmp_path):
+    result = _setup_sh("install_vulkan_driver", AED_APT_ROOT=str(tmp_path))
+    assert result.returncode == 1 and "APT-GET-RAN" not in result.stdout
+    assert "bookworm-backports suite" in result.stderr and "http" not in result.stderr
 
 
 def test_ruff_is_clean():

@@ -3,8 +3,8 @@
 The cap is an articulation link whose joint runs from 0 (rest, up) to -travel (fully
 down). A PD drive aimed a little above the upper limit acts as a preloaded spring, so the
 cap rests against its upper limit and pops back up when released. Shapes differ by split:
-base buttons have round caps (disc, mushroom) on a block or a puck; novel ones have
-angular caps (square, octagon) on a hexagonal or a stepped housing.
+base buttons have flat round caps (disc, mushroom) on a block or a puck; novel ones have a
+square or a domed cap on a hexagonal or a stepped housing.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ HOUSING_SHAPES = {
 }
 CAP_SHAPES = {
     "base": ("button_cap_disc", "button_cap_mushroom"),
-    "novel": ("button_cap_square", "button_cap_octagon"),
+    "novel": ("button_cap_square", "button_cap_dome"),
 }
 
 
@@ -96,7 +96,7 @@ def _add_box(
 def _add_prism(
     builder, shape: str, half: float, z0: float, z1: float, material, density: float
 ) -> None:
-    """A convex polygonal prism from a generated mesh (hexagon, octagon) of unit height."""
+    """A convex solid from a generated mesh of unit height (hexagonal prism, dome)."""
     path, scale = str(mesh_path(shape)), [2 * half, 2 * half, z1 - z0]
     pose = sapien.Pose(p=[0, 0, z0])
     builder.add_convex_collision_from_file(path, pose=pose, scale=scale, density=density)
@@ -135,7 +135,7 @@ def _build_cap(builder, spec: ObjectSpec, housing_material, g: ButtonGeometry) -
         _add_cylinder(builder, r, neck, z1, material, CAP_DENSITY)
     elif spec.shape == "button_cap_square":
         _add_box(builder, r * 0.9, z0, z1, material, CAP_DENSITY)
-    elif spec.shape == "button_cap_octagon":
+    elif spec.shape == "button_cap_dome":  # a revolved dome, its crown at the centre
         _add_prism(builder, spec.shape, r, z0, z1, material, CAP_DENSITY)
     else:
         raise ValueError(f"unknown button cap {spec.shape!r}")

@@ -3,7 +3,7 @@
 The unit's frame has its origin at the cabinet's front bottom edge, centred in y, on the
 table; the cabinet extends along +x and its opening faces -x (the robot). The joint value
 is how far the drawer is pulled out (0 = fully closed, against the joint's lower limit).
-Both links are compounds of boxes (and cylinders for knobs): a hollow cabinet and an
+Both links are compounds of boxes (and cylinders or balls for knobs): a hollow cabinet and an
 open tray, so that the drawer really slides inside the cabinet.
 """
 
@@ -25,7 +25,7 @@ from aed_tasks.scene import physical_material, render_material
 CABINET_SHAPES = {"base": ("cabinet_plain", "cabinet_plinth"), "novel": ("cabinet_legged", "cabinet_crowned")}
 DRAWER_SHAPES = {
     "base": ("drawer_bar", "drawer_knob", "drawer_ledge"),
-    "novel": ("drawer_twin_knobs", "drawer_vertical_bar", "drawer_block"),
+    "novel": ("drawer_twin_balls", "drawer_vertical_bar", "drawer_block"),
 }
 CABINET_LIFT = {"cabinet_plain": 0.0, "cabinet_plinth": 0.018, "cabinet_legged": 0.03, "cabinet_crowned": 0.0}
 
@@ -170,12 +170,20 @@ def _add_handle(link: LinkBuilder, spec: ObjectSpec, layout: DrawerLayout) -> No
         _box(link, [out_x, 0, z], [out_hx, length / 2, 0.004], material, physical, 2000)
     elif spec.shape == "drawer_block":
         _box(link, [out_x, 0, z], [out_hx, length / 4, 0.011], material, physical, 2000)
-    else:  # knobs: cylinders along x
-        offsets = (-length / 2, length / 2) if spec.shape == "drawer_twin_knobs" else (0.0,)
-        for y in offsets:
-            pose = sapien.Pose(p=[out_x, y, z])  # SAPIEN cylinders lie along x: out of the panel
-            link.add_cylinder_collision(pose=pose, radius=0.011, half_length=out_hx, material=physical, density=2000)
-            link.add_cylinder_visual(pose=pose, radius=0.011, half_length=out_hx, material=material)
+    elif spec.shape == "drawer_twin_balls":  # two balls on thin square stems
+        ball = 0.012
+        stem_x, stem_hx = _span(x_face - reach + ball, x_face)
+        for y in (-length / 2, length / 2):
+            _box(link, [stem_x, y, z], [stem_hx, 0.004, 0.004], material, physical, 2000)
+            pose = sapien.Pose(p=[x_face - reach + ball, y, z])
+            link.add_sphere_collision(pose=pose, radius=ball, material=physical, density=2000)
+            link.add_sphere_visual(pose=pose, radius=ball, material=material)
+    elif spec.shape == "drawer_knob":  # a cylinder along x (SAPIEN's axis): out of the panel
+        pose = sapien.Pose(p=[out_x, 0, z])
+        link.add_cylinder_collision(pose=pose, radius=0.011, half_length=out_hx, material=physical, density=2000)
+        link.add_cylinder_visual(pose=pose, radius=0.011, half_length=out_hx, material=material)
+    else:
+        raise ValueError(f"unknown drawer design {spec.shape!r}; known: {DRAWER_SHAPES}")
 
 
 def build_drawer_unit(

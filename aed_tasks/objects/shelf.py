@@ -11,12 +11,14 @@ draws sizes the Panda can push things under.
 Why these sizes: with the top-down gripper the fingertips can never cross the mouth
 before the arm does. When the TCP is 2 cm over the table, the hand (0.21 m wide along y)
 leads it by 3 cm along x and the wrist (link 6) by 4.3 cm, reaching up to z = 0.31 m.
+(A higher board is no way out: at the rest pose the wrist stands between the shelves
+at about 0.38 m.)
 To push something *fully* under, hand and wrist must pass under the board: the clearance
 is at least `MIN_CLEARANCE` and the free width at least `MIN_FREE_WIDTH`. The forearm
 (link 5) swings up to 0.15 m beside the TCP, at the TCP's x: the side supports stand
 `SETBACK` behind the mouth, under an overhanging board.
 
-The items (`ITEM_SHAPES`) are small graspable blocks, books, canisters and cases whose
+The items (`ITEM_SHAPES`) are small graspable blocks, books, canisters and loaves whose
 width along y fits the Panda's open fingers. Item `ObjectSpec.size` = (length along x,
 width along y, height); `item_corners` gives the world corners of an item's bounding box,
 which is how "fully under the shelf" is decided.
@@ -39,7 +41,7 @@ SHELF_SHAPES: dict[str, tuple[str, ...]] = {
 }
 ITEM_SHAPES: dict[str, tuple[str, ...]] = {
     "base": ("item_block", "item_book"),
-    "novel": ("item_canister", "item_case"),
+    "novel": ("item_canister", "item_loaf"),
 }
 BOARD = 0.018  # thickness of the boards under which things are pushed
 SIDE = 0.018  # thickness of side boards, and the side of square posts
@@ -47,7 +49,9 @@ SHELF_DENSITY = 600.0
 ITEM_DENSITY = 500.0
 MIN_CLEARANCE = 0.335  # the wrist reaches z = 0.31 m while the fingertips push 1 cm over the table
 MIN_FREE_WIDTH = 0.235  # the hand is 0.21 m wide along y (plus a little lateral slack)
-SETBACK = 0.03  # the supports stand this far behind the mouth: the forearm passes them at the sides
+# the supports stand this far behind the mouth: the forearm, up to 7 cm ahead of the TCP and
+# 13 cm beside it, hit front posts only 3 cm behind it
+SETBACK = 0.06
 
 
 def sample_shelf_size(rng: np.random.Generator) -> tuple[float, float, float]:
@@ -185,19 +189,21 @@ def build_item(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: floa
     centre = sapien.Pose(p=[0, 0, height / 2])
     half = [length / 2, width / 2, height / 2]
     if spec.shape == "item_canister":  # lying along x: a drum with a darker lid at each end
-        builder.add_cylinder_collision(pose=centre, radius=height / 2, half_length=length / 2, density=density, material=grip)
+        _add_octagonal_drum(builder, length, height / 2, density, grip)
         builder.add_cylinder_visual(pose=centre, radius=height / 2, half_length=length / 2 - 0.003, material=material)
         lids = render_material(MaterialSpec(colour=(0.6, 0.6, 0.62, 1.0), roughness=0.3, metallic=0.8))
         for s in (-1, 1):
             lid = sapien.Pose(p=[s * (length / 2 - 0.0015), 0, height / 2])
             builder.add_cylinder_visual(pose=lid, radius=height / 2 * 0.97, half_length=0.0015, material=lids)
-    elif spec.shape == "item_case":  # a box with a slightly wider lid on its upper third
-        body_half = [length / 2 - 0.002, width / 2 - 0.002, height / 3]
-        lid_half = [length / 2, width / 2, height / 6]
-        body, lid = sapien.Pose(p=[0, 0, height / 3]), sapien.Pose(p=[0, 0, height * 5 / 6])
-        for pose, box in ((body, body_half), (lid, lid_half)):
-            builder.add_box_collision(pose=pose, half_size=box, density=density, material=grip)
-            builder.add_box_visual(pose=pose, half_size=box, material=material)
+    elif spec.shape == "item_loaf":  # a box under a round roof (a half drum along x)
+        roof = width / 2
+        body = sapien.Pose(p=[0, 0, (height - roof) / 2])
+        body_half = [length / 2, width / 2, (height - roof) / 2]
+        builder.add_box_collision(pose=body, half_size=body_half, density=density, material=grip)
+        builder.add_box_visual(pose=body, half_size=body_half, material=material)
+        top = sapien.Pose(p=[0, 0, height - roof])  # SAPIEN cylinders lie along x
+        builder.add_cylinder_collision(pose=top, radius=roof, half_length=length / 2, density=density, material=grip)
+        builder.add_cylinder_visual(pose=top, radius=roof, half_length=length / 2, material=material)
     else:
         builder.add_box_collision(pose=centre, half_size=half, density=density, material=grip)
         if spec.shape == "item_book":  # covers and spine in colour, pages showing on three sides
@@ -212,6 +218,23 @@ def build_item(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: floa
             builder.add_box_visual(pose=centre, half_size=half, material=material)
     builder.initial_pose = sapien.Pose(p=[0, 0, 0])
     return builder.build(name=name)
+
+
+def _add_octagonal_drum(builder: sapien.ActorBuilder, length: float, radius: float, density: float, material) -> None:
+    """The canister's collision: four boxes turned 45 degrees apart about x, flat faces at `radius`.
+
+    A lying PhysX cylinder rolls away on its own from any small tilt (it even gains speed):
+    the canister, released or nudged, left its lane in about half of the episodes. The
+    octagon-like section rests on a flat face (1.7 cm wide) and must tip 22.5 degrees to
+    roll; the fingers grip its flat sides at y = +-radius and push its flat end.
+    """
+    half_flat = radius * np.tan(np.pi / 8)
+    # the boxes overlap: scale the density so the mass is the round drum's
+    density = density * np.pi * radius**2 / (4 * 4 * radius * half_flat)
+    for k in range(4):
+        angle = k * np.pi / 4
+        pose = sapien.Pose(p=[0, 0, radius], q=[np.cos(angle / 2), np.sin(angle / 2), 0, 0])
+        builder.add_box_collision(pose=pose, half_size=[length / 2, radius, half_flat], density=density, material=material)
 
 
 _UNIT_CORNERS = torch.tensor([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (0, 2)], dtype=torch.float32) / 2

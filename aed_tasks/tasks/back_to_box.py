@@ -27,6 +27,11 @@ from aed_tasks.scene import rotation_z
 # below; the hand body starts 3.7 cm above the TCP.
 FINGER_FRONT = 0.011
 HAND_ABOVE_TCP = 0.037
+# the hand leads the TCP by 3.4 cm: it stops the push this far before the board (box rear
+# 2.3 cm before it), so the box may stick out of the board by at most MAX_OUT_OF_BOARD
+HAND_LEAD = 0.034
+MAX_OUT_OF_BOARD = 0.03
+CLEARLY_OUT = 0.05  # `box_not_under` leaves the box's rear at least this far before the board
 DISTRACTOR_REGION = (-0.35, 0.3, -0.45, 0.45)
 
 
@@ -47,17 +52,27 @@ class BackToBoxEnv(AEDBaseEnv):
       box (15-22 cm to either side) and yaw, distractor positions
 
     **Success Conditions:**
-    - the toy rests inside the storage box (released), and
-    - the box's whole footprint lies under the bookshelf (between its sides, from its front
-      edge to its back)
+    - the toy rests inside the storage box (released: its centre within the inner walls,
+      above the floor, below the rim), and
+    - the box is under the shelf's board: its footprint lies between the shelf's sides and
+      before its back, and no corner stands more than `MAX_OUT_OF_BOARD` = 3 cm in front of
+      the board (at least 70% of the box's 9-11 cm depth under the board). The board is
+      measured, not the side panels' front edges 5 cm ahead of it; 3 cm, because the
+      top-down hand (3.4 cm ahead of the TCP) must stay in front of the board, so the push
+      leaves the box's rear about 2.3 cm before it.
 
     **Stages:** picked (lifted while grasped), in box (released inside it), box under the
     shelf (success).
 
-    **Behaviour Errors:**
-    - `no_grasp`: the fingers close in front of or behind the toy; it is never picked up
-    - `miss_box`: the toy is released on the table beside the storage box
-    - `box_not_under`: the push stops early; the box stays (partly) out of the shelf
+    **Behaviour Errors** (each episode's end is checked to show its failure, `error_outcome`):
+    - `no_grasp`: the fingers close 1.2-2 cm in front of or behind the toy; it is never
+      picked up (checked: never lifted 1 cm, not in the box)
+    - `miss_box`: the toy is carried towards the box but set down on the table beside it
+      (checked: lifted, then resting on the table out of the box); the onset is where the
+      carry stops short, the clean carry having been followed until then
+    - `box_not_under`: the push stops with the box's rear 8-14 cm before the board (checked:
+      toy in the box, the box's rear at least `CLEARLY_OUT` = 5 cm before the board); the
+      onset is where the push stops, the clean push having been followed until then
     """
 
     task_name = "BackToBox"
@@ -120,6 +135,7 @@ class BackToBoxEnv(AEDBaseEnv):
         keep_out += [(x, y, 0.05) for x, y in np.linspace([toy_x, toy_y], [box_x, box_y], 5)]
         self.place_distractors(rng, DISTRACTOR_REGION, keep_out)
         self.stage_reached = torch.zeros(self.num_envs, dtype=torch.int32, device=self.device)
+        self.highest = torch.zeros(self.num_envs, device=self.device)  # the toy's highest centre so far
 
     # --- evaluation -------------------------------------------------------------------------
     def toy_in_box(self) -> torch.Tensor:
@@ -129,16 +145,23 @@ class BackToBoxEnv(AEDBaseEnv):
         inside = (local[:, 0].abs() < half_x) & (local[:, 1].abs() < half_y)
         return inside & (local[:, 2] > self.box_geometry.floor) & (local[:, 2] < self.box_geometry.height)
 
-    def box_under_shelf(self) -> torch.Tensor:
-        """Every corner of the box's footprint lies under the shelf (between its sides)."""
+    def _box_corners_in_shelf(self) -> torch.Tensor:
+        """(n, 4, 3): the corners of the box's footprint in the shelf's frame."""
         g = self.box_geometry
         corners = torch.tensor(
             [[sx * g.depth / 2, sy * g.width / 2, 0.0, 1.0] for sx in (-1, 1) for sy in (-1, 1)], device=self.device
         )
         to_shelf = self.shelf.pose.inv().to_transformation_matrix() @ self.box.pose.to_transformation_matrix()
-        local = torch.einsum("nij,kj->nki", to_shelf, corners)[..., :3]
-        s = self.shelf_geometry
-        within_x = (local[..., 0] >= 0) & (local[..., 0] <= s.depth)
+        return torch.einsum("nij,kj->nki", to_shelf, corners)[..., :3]
+
+    def box_out_of_board(self) -> torch.Tensor:
+        """How far (m) the box's hindmost corner stands in front of the board (<= 0: under it)."""
+        return SHELF_RECESS - self._box_corners_in_shelf()[..., 0].min(dim=1).values
+
+    def box_under_shelf(self) -> torch.Tensor:
+        """The box between the shelf's sides, before its back, at most 3 cm out of the board."""
+        local, s = self._box_corners_in_shelf(), self.shelf_geometry
+        within_x = (local[..., 0] >= SHELF_RECESS - MAX_OUT_OF_BOARD) & (local[..., 0] <= s.depth)
         within_y = local[..., 1].abs() <= s.inner_width / 2
         return (within_x & within_y).all(dim=1)
 
@@ -148,6 +171,7 @@ class BackToBoxEnv(AEDBaseEnv):
         in_box = self.toy_in_box() & ~grasped
         under = self.box_under_shelf()
         success = in_box & under
+        self.highest = torch.maximum(self.highest, self.toy.pose.p[:, 2])
         stage = torch.where(success, 3, torch.where(in_box, 2, torch.where(grasped & lifted, 1, 0))).to(torch.int32)
         self.stage_reached = torch.maximum(self.stage_reached, stage)
         return {
@@ -161,6 +185,28 @@ class BackToBoxEnv(AEDBaseEnv):
 
     def state_entities(self) -> dict:
         return {"toy": self.toy, "storage_box": self.box, "bookshelf": self.shelf}
+
+    def error_outcome(self, kind: str) -> str:
+        problem = super().error_outcome(kind)
+        if problem:
+            return problem
+        if bool(self.agent.is_grasping(self.toy)[0]):
+            return "the gripper still holds the toy"
+        lifted = float(self.highest[0]) - self.toy_edge / 2
+        in_box = bool(self.toy_in_box()[0])
+        if kind == "no_grasp":
+            if lifted > 0.01:
+                return f"the toy was lifted {lifted * 100:.1f} cm"
+            return "the toy is in the box" if in_box else ""
+        if kind == "miss_box":
+            if lifted < 0.02:
+                return f"the toy was never carried (lifted {lifted * 100:.1f} cm)"
+            on_table = float(self.toy.pose.p[0, 2]) < self.toy_edge / 2 + 0.005
+            return "" if not in_box and on_table else "the toy is in the box or not on the table"
+        if not in_box:
+            return "the toy is not in the box"
+        out = float(self.box_out_of_board()[0])
+        return "" if out >= CLEARLY_OUT else f"the box's rear is only {out * 100:.1f} cm before the board"
 
     # --- expert -----------------------------------------------------------------------------
     def expert_script(self, expert: ScriptedExpert, error: ErrorSpec | None) -> None:
@@ -177,30 +223,39 @@ class BackToBoxEnv(AEDBaseEnv):
     def _put_toy_in_box(self, expert: ScriptedExpert, kind: str | None) -> bool:
         """Grasp the toy and release it above the box; False when an error ended the attempt."""
         edge = self.toy_edge
-        toy = self.toy.pose.p[0].numpy().astype(np.float64)
+        toy = self.toy.pose.p[0].cpu().numpy().astype(np.float64)
         grasp = np.array([toy[0], toy[1], max(toy[2], 0.017)])
         expert.move_to(grasp + [0.0, 0.0, expert.rng.uniform(0.08, 0.13)] + expert.jitter(0.02))
         if kind == "no_grasp":  # the fingers come down in front of or behind the toy
             expert.mark_error()
-            offset = np.sign(expert.rng.uniform(-1, 1)) * (edge / 2 + FINGER_FRONT + expert.rng.uniform(0.012, 0.02))
+            side = np.sign(expert.error_rng.uniform(-1, 1))
+            offset = side * (edge / 2 + FINGER_FRONT + expert.error_rng.uniform(0.012, 0.02))
             grasp = grasp + [offset, 0.0, 0.0]
         expert.move_to(grasp, speed=expert.speed * 0.6)
         expert.close_gripper()
         expert.move_by([0.0, 0.0, expert.rng.uniform(0.12, 0.17)], speed=expert.speed * 0.7)
 
         g = self.box_geometry
-        box = self.box.pose.p[0].numpy().astype(np.float64)
+        box = self.box.pose.p[0].cpu().numpy().astype(np.float64)
         release = np.array([box[0], box[1], g.height + edge / 2 + expert.rng.uniform(0.012, 0.02)])
-        if kind == "miss_box":  # put it down on the table beside the box
-            expert.mark_error()
+        over_box = np.array([release[0], release[1], expert.tcp[2]]) + expert.jitter(0.01)
+        stop_before = None
+        if kind == "miss_box":  # carry as the clean expert does, stop short beside the box
             side = np.sign(expert.tcp[1] - box[1]) or 1.0
-            release[1] += side * (g.width / 2 + edge / 2 + expert.rng.uniform(0.065, 0.085))  # room for the fingers
-            release[2] = edge / 2 + 0.012
-        expert.move_to(np.array([release[0], release[1], expert.tcp[2]]) + expert.jitter(0.01))
+            miss_y = box[1] + side * (g.width / 2 + edge / 2 + expert.error_rng.uniform(0.065, 0.085))  # room for the fingers
+
+            def stop_before(waypoint: np.ndarray) -> bool:
+                return bool(side * (waypoint[1] - miss_y) <= 0)
+        if expert.move_to(over_box, stop_before=stop_before):
+            expert.mark_error()  # the carry stops here: the clean expert would go on to the box
+            release = np.array([expert.tcp[0], miss_y, edge / 2 + 0.012])
         expert.move_to(release, speed=expert.speed * 0.6)
         expert.open_gripper()
         expert.move_by([0.0, 0.0, expert.rng.uniform(0.05, 0.08)])
-        return kind not in ("no_grasp", "miss_box")
+        if kind in ("no_grasp", "miss_box"):
+            expert.wait(4)  # the same rest as after a push
+            return False
+        return True
 
     def _push_box_under(self, expert: ScriptedExpert, kind: str | None) -> None:
         """Fingers closed behind the box's back wall, push along +x until it is under the shelf.
@@ -216,12 +271,10 @@ class BackToBoxEnv(AEDBaseEnv):
         expert.move_to(np.array([start_x, rear[1], max(expert.tcp[2], g.height + 0.05)]))
         expert.close_gripper(6)
         expert.move_to(np.array([start_x, rear[1], push_z]), speed=expert.speed * 0.7)
-        if kind == "box_not_under":
-            goal = front_x - expert.rng.uniform(0.03, 0.09)  # where the box's hindmost corner stops
-        else:
-            goal = front_x + expert.rng.uniform(0.008, 0.015)
-        self._push_until(expert, goal, push_z, speed=expert.speed * 0.6)
-        if kind == "box_not_under":  # stops short of the shelf and backs away
+        # the clean push goes on until the hand is as close to the board as it may come
+        stop_at = front_x - expert.error_rng.uniform(0.03, 0.09) if kind == "box_not_under" else None
+        self._push_until(expert, front_x + SHELF_RECESS, push_z, speed=expert.speed * 0.6, stop_at=stop_at)
+        if kind == "box_not_under":  # stops short of the shelf and backs away (marked where it stops)
             expert.mark_error()
         expert.move_by([-expert.rng.uniform(0.04, 0.07), 0.0, 0.0])
         expert.move_by([0.0, 0.0, expert.rng.uniform(0.08, 0.12)])
@@ -230,24 +283,33 @@ class BackToBoxEnv(AEDBaseEnv):
     def _box_rear(self) -> np.ndarray:
         """World position of the middle of the box's back (robot-side) wall, at its bottom."""
         rear = self.box.pose * Pose.create_from_pq(p=[-self.box_geometry.depth / 2, 0.0, 0.0])
-        return rear.p[0].numpy().astype(np.float64)
+        return rear.p[0].cpu().numpy().astype(np.float64)
 
-    def _push_until(self, expert: ScriptedExpert, goal: float, push_z: float, speed: float) -> None:
-        """Push along +x until the box's hindmost corner passes x = `goal`."""
+    def _push_until(
+        self, expert: ScriptedExpert, goal: float, push_z: float, speed: float, stop_at: float | None = None
+    ) -> None:
+        """Push along +x until the box's hindmost corner passes x = `goal`.
+
+        With `stop_at` (an error's shortened push) it stops, marking the onset, before the
+        first step whose box has its hindmost corner past `stop_at` already.
+        """
         g = self.box_geometry
-        # the hand must stay in front of the recessed board: it reaches 3 cm past the fingers
-        tcp_limit = float(self.shelf.pose.p[0, 0]) + SHELF_RECESS - 0.034
+        # the hand must stay in front of the recessed board: it reaches 3.4 cm past the TCP
+        tcp_limit = float(self.shelf.pose.p[0, 0]) + SHELF_RECESS - HAND_LEAD
         stalled = 0
         line_y = expert.tcp[1]
         for _ in range(200):
             pose = self.box.pose
-            q = pose.q[0].numpy()
+            q = pose.q[0].cpu().numpy()
             yaw = 2 * np.arctan2(q[3], q[0])
-            centre = pose.p[0].numpy()
+            centre = pose.p[0].cpu().numpy()
             hindmost = centre[0] - g.depth / 2 * abs(np.cos(yaw)) - g.width / 2 * abs(np.sin(yaw))
             remaining = goal - hindmost
             tcp = expert.tcp
             if remaining <= 0 or tcp[0] >= tcp_limit or stalled > 15:
+                return
+            if stop_at is not None and hindmost >= stop_at:
+                expert.mark_error()  # the clean push goes on from here
                 return
             advance = min(speed, remaining + 0.002, tcp_limit - tcp[0])
             delta = np.array([advance, np.clip(line_y - tcp[1], -speed / 2, speed / 2), push_z - tcp[2]])

@@ -14,6 +14,7 @@ from aed_tasks.registration import register_task
 
 CLOSED_TOLERANCE = 0.01  # a drawer out by less than this is fully closed
 UNMOVED_TOLERANCE = 0.015  # the distractor may be nudged by less than this
+OPEN_AFTER_ERROR = 0.02  # a drawer left out by this much or more is visibly open (error outcomes)
 OPENING = (0.09, 0.15)  # how far each drawer starts pulled out
 FRONT_X = (0.03, 0.08)  # world x of the cabinets' fronts
 CENTRE_Y = (-0.06, 0.06)  # world y of the seam between the two units
@@ -48,11 +49,13 @@ class CloseDrawerEnv(AEDBaseEnv):
 
     **Stages:** closed (success).
 
-    **Behaviour Errors:**
+    **Behaviour Errors** (each episode's end is checked to show its failure, `error_outcome`):
     - `not_fully_closed`: the gripper stops pushing partway; the target stays 3.5-6 cm open
+      (checked: out by 2 cm or more, the distractor unmoved); the onset is where it stops
     - `closes_distractor`: the distractor drawer is pushed closed instead of the target
+      (checked: the distractor closed, the target still out by 2 cm or more)
     - `closes_both`: the gripper pushes at the seam between the units, closing both drawers
-      at the same time
+      at the same time (checked: both closed)
     """
 
     task_name = "CloseDrawer"
@@ -141,10 +144,22 @@ class CloseDrawerEnv(AEDBaseEnv):
             obs["distractor_drawer_qpos"] = self.distractor_drawer.qpos
         return obs
 
+    def error_outcome(self, kind: str) -> str:
+        super().error_outcome(kind)
+        info = self.evaluate()
+        target, distractor = float(info["target_opening"][0]), float(self.distractor_drawer.qpos[0, 0])
+        target_closed, distractor_closed = target < CLOSED_TOLERANCE, distractor < CLOSED_TOLERANCE
+        shown = {
+            "not_fully_closed": target >= OPEN_AFTER_ERROR and float(info["distractor_shift"][0].abs()) < UNMOVED_TOLERANCE,
+            "closes_distractor": distractor_closed and target >= OPEN_AFTER_ERROR,
+            "closes_both": target_closed and distractor_closed,
+        }[kind]
+        return "" if shown else f"target out by {target * 100:.1f} cm, distractor out by {distractor * 100:.1f} cm"
+
     # --- expert -----------------------------------------------------------------------------
     def _front(self, unit, layout: DrawerLayout) -> tuple[np.ndarray, float, float]:
         """A unit's (x, y) origin, its panel's front x now, and that x once closed (world)."""
-        origin = unit.pose.p[0].numpy().astype(np.float64)[:2]
+        origin = unit.pose.p[0].cpu().numpy().astype(np.float64)[:2]
         opening = float(unit.qpos[0, 0])
         closed_x = origin[0] + layout.panel_front_x
         return origin, closed_x - opening, closed_x
@@ -163,7 +178,7 @@ class CloseDrawerEnv(AEDBaseEnv):
             layout = self.target_layout
             self._push_drawer(expert, seam_y, min(target_front, other_front), target_closed, layout)
         else:
-            stop_short = expert.rng.uniform(0.035, 0.06) if kind == "not_fully_closed" else None
+            stop_short = expert.error_rng.uniform(0.035, 0.06) if kind == "not_fully_closed" else None
             self._push_drawer(expert, target[1], target_front, target_closed, self.target_layout, stop_short)
         expert.move_by([-expert.rng.uniform(0.04, 0.07), 0.0, expert.rng.uniform(0.06, 0.1)])
         expert.wait(4)

@@ -32,7 +32,7 @@ from aed_tasks.registration import register_task
 from aed_tasks.scene import TABLE_HEIGHT, rotation_z
 
 BOX_SHAPES = {"base": ("box_plain", "box_flanged"), "novel": ("box_handled", "box_cornered")}
-PRODUCT_SHAPES = {"base": ("product_carton", "product_can"), "novel": ("product_hexprism", "product_jar")}
+PRODUCT_SHAPES = {"base": ("product_carton", "product_can"), "novel": ("product_tub", "product_jar")}
 CONVEYOR_SHAPES = {"base": ("conveyor_railed",), "novel": ("conveyor_rollered",)}
 # Factory looks, drawn from each split's own texture pool (concrete, epoxy, steel, plate).
 FACTORY_TEXTURES = {
@@ -49,6 +49,11 @@ FACTORY_TEXTURES = {
         "belt": ("weave_1", "dots_1", "tiles_1"),  # charcoal belts
     },
 }
+# Base colours under those textures, by split: grey halls (base), warm-tinted halls (novel).
+FACTORY_TINTS = {
+    "base": {"floor": (1.0, 1.0, 1.0), "wall": (0.85, 0.86, 0.82), "table": (0.8, 0.82, 0.85)},
+    "novel": {"floor": (1.0, 0.9, 0.8), "wall": (0.95, 0.85, 0.9), "table": (0.9, 0.95, 0.8)},
+}
 
 # Layout on the operating table (top at z = 0; the robot stands at x = -0.615).
 BELT_WIDTH = 0.16
@@ -59,6 +64,7 @@ DESTINATION_X = 0.30  # the box centre beyond this, on the outgoing belt: delive
 PRODUCT_REGION = (-0.25, -0.12, -0.07, 0.07)  # x0, x1, y0, y1
 BELT_SPEED = (0.10, 0.14)  # m/s, per episode and belt
 PILLARS = [(-1.25, -0.95), (-1.25, 0.95)]
+MISS_OFFSET = 0.15  # `miss_belt` sets the box down this far (y) short of or past the belt's centre
 
 
 def factory_background(rng: np.random.Generator, split: str) -> dict[str, MaterialSpec]:
@@ -70,12 +76,14 @@ def factory_background(rng: np.random.Generator, split: str) -> dict[str, Materi
         assert name in texture_names(split), name
         return name
 
-    grey = float(rng.uniform(0.75, 0.95))
+    tints = FACTORY_TINTS[split]
+    shade = float(rng.uniform(0.75, 0.95))
+    floor = tuple(shade * c for c in tints["floor"]) + (1.0,)
     return {
-        "floor": MaterialSpec(colour=(grey, grey, grey, 1.0), texture=texture("floor"), roughness=float(rng.uniform(0.6, 0.9))),
-        "wall": MaterialSpec(colour=(0.85, 0.86, 0.82, 1.0), texture=texture("wall"), roughness=0.9),
+        "floor": MaterialSpec(colour=floor, texture=texture("floor"), roughness=float(rng.uniform(0.6, 0.9))),
+        "wall": MaterialSpec(colour=(*tints["wall"], 1.0), texture=texture("wall"), roughness=0.9),
         "table": MaterialSpec(
-            colour=(0.8, 0.82, 0.85, 1.0), texture=texture("table"),
+            colour=(*tints["table"], 1.0), texture=texture("table"),
             roughness=float(rng.uniform(0.3, 0.5)), metallic=float(rng.uniform(0.5, 0.8)),
         ),
     }  # fmt: skip
@@ -96,16 +104,23 @@ class FactoryPackingEnv(AEDBaseEnv):
       offset, both belt speeds (0.10-0.14 m/s), product position and yaw
 
     **Success Conditions:**
-    - the product is inside the box and the box, released, has reached the destination
-      (the far end of the outgoing belt)
+    - the product is inside the box (its origin within the inner walls, 6 mm thick, above
+      the box's bottom and below its rim) and the box, released, has reached the
+      destination: on the outgoing belt (centre within 6 cm of the belt's centre line, bottom
+      within 1.2 cm of the belt's surface) with its centre beyond x = `DESTINATION_X` = 0.30 m
 
     **Stages:** box arrived at the operating table, product in box, box picked (with the
     product), box delivered (success).
 
-    **Behaviour Errors:**
-    - `product_not_in_box`: the product is put down beside the box, not into it
-    - `no_grasp_box`: the gripper closes beside the box; the box is never picked up
-    - `miss_belt`: the box is put down off the outgoing belt
+    **Behaviour Errors** (each episode's end is checked to show its failure, `error_outcome`):
+    - `product_not_in_box`: the product is put down beside the box, not into it (checked:
+      the product out of the box, the box not delivered)
+    - `no_grasp_box`: the gripper closes beyond the box's open end; the box is never picked
+      up (checked: the box, packed, never lifted, still at the incoming belt)
+    - `miss_belt`: the box is put down on the table 15 cm short of (or past) the outgoing
+      belt's centre line (checked: the box, packed, was lifted, now rests off the belt).
+      The onset is where the carry departs: short, where it stops while the clean carry
+      goes on; past, where it goes on while the clean expert would put the box down
     """
 
     task_name = "FactoryPacking"
@@ -159,6 +174,7 @@ class FactoryPackingEnv(AEDBaseEnv):
         px, py = sample_free_xy(rng, PRODUCT_REGION, 0.0, [])
         self.product.set_pose(Pose.create_from_pq(p=[px, py, 0.001], q=rotation_z(rng.uniform(-0.3, 0.3))))
         self.stage_reached = torch.zeros(self.num_envs, dtype=torch.int32, device=self.device)
+        self.box_highest = torch.zeros(self.num_envs, device=self.device)  # the box's highest bottom so far
 
     def _before_simulation_step(self) -> None:
         for belt in (self.in_belt, self.out_belt):
@@ -202,6 +218,7 @@ class FactoryPackingEnv(AEDBaseEnv):
             success, 4, torch.where(picked, 3, torch.where(packed, 2, torch.where(self.box_arrived(), 1, 0)))
         ).to(torch.int32)
         self.stage_reached = torch.maximum(self.stage_reached, stage)
+        self.box_highest = torch.maximum(self.box_highest, self.box.pose.p[:, 2])
         # an empty box at the destination is out of reach for good
         fail = self.objects_off_table(self.box, self.product) | (delivered & ~packed)
         return {"success": success, "fail": fail, "stage": self.stage_reached.clone(), "is_grasped": grasped}
@@ -209,9 +226,33 @@ class FactoryPackingEnv(AEDBaseEnv):
     def state_entities(self) -> dict:
         return {"box": self.box, "product": self.product}
 
+    def error_outcome(self, kind: str) -> str:
+        problem = super().error_outcome(kind)
+        if problem:
+            return problem
+        packed, delivered = bool(self.product_in_box()[0]), bool(self.box_delivered()[0])
+        if kind == "product_not_in_box":
+            if packed or bool(self.agent.is_grasping(self.product)[0]):
+                return "the product is in the box or still held"
+            return "the box was delivered" if delivered else ""
+        if not packed:
+            return "the product is not in the box"
+        if bool(self.agent.is_grasping(self.box)[0]):
+            return "the gripper still holds the box"
+        lifted = float(self.box_highest[0]) - BELT_TOP
+        if kind == "no_grasp_box":
+            if lifted > 0.01:
+                return f"the box was lifted {lifted * 100:.1f} cm"
+            return "" if bool(self.box_arrived()[0]) else "the box left the incoming belt"
+        if lifted < 0.02:
+            return f"the box was never carried (lifted {lifted * 100:.1f} cm)"
+        if bool(self.box_on_out_belt()[0]):
+            return "the box is on the outgoing belt"
+        return "" if float(self.box.pose.p[0, 2]) < 0.01 else "the box does not rest on the table"
+
     # --- expert -----------------------------------------------------------------------------
     def _pose_of(self, actor) -> np.ndarray:
-        return actor.pose.p[0].numpy().astype(np.float64)
+        return actor.pose.p[0].cpu().numpy().astype(np.float64)
 
     def expert_script(self, expert: ScriptedExpert, error: ErrorSpec | None) -> None:
         """Pack the product (unless it already is), then move the box to the outgoing belt."""
@@ -223,7 +264,7 @@ class FactoryPackingEnv(AEDBaseEnv):
             if not self._pack_product(expert, kind):
                 return
         if bool(self.box_on_out_belt()[0]):
-            expert.wait(200)  # already on its way to the destination
+            self._rest_until_delivered(expert, float(self.box.pose.p[0, 0]))  # already on its way
             return
         if not self._pick_box(expert, kind):
             return
@@ -255,7 +296,7 @@ class FactoryPackingEnv(AEDBaseEnv):
         if kind == "product_not_in_box":  # set it down on the table beside the box instead
             expert.mark_error()
             length = self.env_spec.objects["box"].size[0]
-            if expert.rng.random() < 0.5:
+            if expert.error_rng.random() < 0.5:
                 beside = np.array([box[0] - length / 2 - 0.075, box[1] - 0.02, grip + 0.01])
             else:
                 beside = np.array([box[0] - 0.02, IN_BELT_Y - 0.17, grip + 0.01])
@@ -296,15 +337,28 @@ class FactoryPackingEnv(AEDBaseEnv):
         height = self.env_spec.objects["box"].size[2]
         drop_x = expert.rng.uniform(-0.06, 0.0)
         target = np.array([drop_x, OUT_BELT_Y + expert.rng.uniform(-0.01, 0.01), BELT_TOP + 0.008 + height - 0.018])
+        over_belt = np.array([target[0], target[1], expert.tcp[2]])
         if kind == "miss_belt":  # on the table short of the belt, or past it
+            short = bool(expert.error_rng.random() < 0.5)
+            miss_y = OUT_BELT_Y + (MISS_OFFSET if short else -MISS_OFFSET)
+            target = np.array([target[0], miss_y, target[2] - BELT_TOP])
+            if short:  # carry as the clean expert does, stop before the belt
+                expert.move_to(over_belt, stop_before=lambda waypoint: bool(waypoint[1] < miss_y))
+            else:  # carry as the clean expert does, then go on past the belt
+                expert.move_to(over_belt)
             expert.mark_error()
-            target[1] = OUT_BELT_Y + (0.15 if expert.rng.random() < 0.5 else -0.15)
-            target[2] -= BELT_TOP
-        expert.move_to(np.array([target[0], target[1], expert.tcp[2]]))
+            expert.move_to(np.array([expert.tcp[0], miss_y, expert.tcp[2]]))
+        else:
+            expert.move_to(over_belt)
         expert.move_to(target, speed=expert.speed * 0.5, tol=0.004)
         expert.open_gripper()
         expert.move_by([0.0, 0.0, 0.08], speed=expert.speed * 0.7)
-        if kind == "miss_belt":
-            expert.wait(6)
-            return
-        expert.wait(200)  # the belt carries the box to its destination (success ends the episode)
+        self._rest_until_delivered(expert, target[0])
+
+    def _rest_until_delivered(self, expert: ScriptedExpert, box_x: float) -> None:
+        """Rest while the belt carries the box (released at `box_x`) to the destination.
+
+        As long after a miss as after a delivery: the time the belt needs, then 4 steps.
+        """
+        travel = max(DESTINATION_X + 0.02 - box_x, 0.0) / self.out_belt.speed
+        expert.wait(int(np.ceil(travel / self.control_timestep)) + 4)

@@ -21,14 +21,19 @@ from aed_tasks.objects.glass import (
 from aed_tasks.registration import register_task
 from aed_tasks.scene import rotation_z
 
-GLASS_SHAPES = {"base": ("glass_tumbler", "glass_tapered"), "novel": ("glass_faceted", "glass_flared")}
+GLASS_SHAPES = {"base": ("glass_tumbler", "glass_tapered"), "novel": ("glass_octagonal", "glass_round_bottom")}
 COASTER_SHAPES = {"base": ("coaster_round", "coaster_square"), "novel": ("coaster_hexagon", "coaster_oval")}
 GLASS_REGION = (-0.22, -0.09, -0.2, 0.2)  # x0, x1, y0, y1 on the table top
 COASTER_REGION = (-0.03, 0.12, -0.24, 0.24)
 TABLE_REACH = (-0.26, 0.15, -0.28, 0.28)  # where the expert may put the glass down
-FILL = (0.45, 0.6)  # water level as a fraction of the glass height
+FILL = (0.55, 0.7)  # water level as a fraction of the glass height (the spill needs headroom under 6 cm)
 RIM_CLEARANCE = 0.010  # grasp this close under the rim: the palm (3.7 cm above the tcp) leaves a gap
+MAX_DROPS = 28  # drops in the fullest glass
 SPILL_MARGIN = 0.003  # a drop this far outside the wall has left the glass
+UPRIGHT_TILT = 15.0  # degrees: the glass stands upright with its axis within this of vertical
+UNTOUCHED = 0.01  # m: `no_grasp` leaves the glass within this of its start (it never moved)
+OFF_HEADING = 50.0  # degrees: `off_coaster` heads this far off the way to the target coaster
+DIP_UP, DIP_DOWN, DIP_ASIDE = 3, 2, 2  # `spill`: steps at full speed up, down, then down and sideways
 
 
 @register_task
@@ -48,15 +53,23 @@ class MoveGlassCupEnv(AEDBaseEnv):
       (which side the target is on varies), the drops' arrangement in the glass
 
     **Success Conditions:**
-    - the glass stands upright on the target coaster, released by the gripper
-    - no water was spilled: every drop stayed inside the glass all episode
+    - the glass stands upright on the target coaster, released by the gripper: its centre
+      within 0.75 of the coaster's support radius, its base within 6 mm of the coaster's top,
+      its axis within 15 degrees of vertical
+    - no water was spilled: every drop stayed inside the glass all episode (a drop is out
+      3 mm beyond the outer wall, 1 cm below the base or 5 cm above the rim)
 
     **Stages:** picked (lifted while grasped), placed (success).
 
-    **Behaviour Errors:**
-    - `no_grasp`: the gripper closes beside the glass; it is never picked up
-    - `spill`: the glass is jerked up and down while carried and water flies out
-    - `off_coaster`: the glass is put down on the table, off the target coaster
+    **Behaviour Errors** (each episode's end is checked to show its failure, `error_outcome`):
+    - `no_grasp`: the gripper closes in front of or behind the glass (its fingers 2 cm off
+      the wall); it is never picked up (checked: the glass never moved by 1 cm, no spill)
+    - `spill`: part of the way over (25-50% of the carry) the carry turns jerky: the arm jerks
+      the glass up, down and sideways at full speed, up to 4 times until a drop flies out
+      (checked: water spilled); the onset is where the smooth carry stops
+    - `off_coaster`: the glass is carried to a spot on the table 12-22 cm from the target
+      coaster, heading at least 50 degrees off the way to it where the table allows, and put
+      down there (checked: released, upright, its footprint clear of both coasters, no spill)
     """
 
     task_name = "MoveGlassCup"
@@ -104,6 +117,8 @@ class MoveGlassCupEnv(AEDBaseEnv):
             self._place(drop, [x + c * dx - s * dy, y + s * dx + c * dy, 0.001 + dz], 0.0)
         self.stage_reached = torch.zeros(self.num_envs, dtype=torch.int32, device=self.device)
         self.spilled = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        self.glass_start = self.glass.pose.p.clone()
+        self.glass_travel = torch.zeros(self.num_envs, device=self.device)  # farthest from the start so far
 
     def _place(self, actor, position: list[float], yaw: float) -> None:
         actor.set_pose(Pose.create_from_pq(p=position, q=rotation_z(yaw)))  # (ManiSkill zeroed velocities)
@@ -125,7 +140,7 @@ class MoveGlassCupEnv(AEDBaseEnv):
         offset = self.glass.pose.p - self.target_coaster.pose.p
         centred = torch.linalg.norm(offset[:, :2], dim=1) < coaster_support_radius(spec) * 0.75
         resting = (offset[:, 2] - spec.size[1]).abs() < 0.006
-        upright = self.glass.pose.to_transformation_matrix()[:, 2, 2] > np.cos(np.deg2rad(15))
+        upright = self.glass.pose.to_transformation_matrix()[:, 2, 2] > np.cos(np.deg2rad(UPRIGHT_TILT))
         return centred & resting & upright
 
     def evaluate(self) -> dict[str, torch.Tensor]:
@@ -133,6 +148,8 @@ class MoveGlassCupEnv(AEDBaseEnv):
         lifted = self.glass.pose.p[:, 2] > 0.03
         outside = self.drops_outside()
         self.spilled = self.spilled | outside.any(dim=1)
+        moved = torch.linalg.norm(self.glass.pose.p - self.glass_start, dim=1)
+        self.glass_travel = torch.maximum(self.glass_travel, moved)
         placed = self._on_target() & ~grasped
         success = placed & ~self.spilled
         stage = torch.where(success, 2, torch.where(grasped & lifted, 1, 0)).to(torch.int32)
@@ -149,10 +166,32 @@ class MoveGlassCupEnv(AEDBaseEnv):
     def state_entities(self) -> dict:
         return {"glass": self.glass, "target_coaster": self.target_coaster, "distractor_coaster": self.distractor_coaster}
 
+    def error_outcome(self, kind: str) -> str:
+        super().error_outcome(kind)
+        info = self.evaluate()
+        spilled = bool(info["spilled"][0])
+        if kind == "spill":
+            return "" if spilled else "no drop left the glass"
+        if bool(info["is_grasped"][0]):
+            return "the gripper still holds the glass"
+        if spilled:
+            return f"water was spilled too ({int(info['drops_outside'][0])} drops out)"
+        if kind == "no_grasp":
+            travel = float(self.glass_travel[0])
+            return "" if travel < UNTOUCHED else f"the glass moved by {travel * 100:.1f} cm"
+        glass = self.glass.pose.p[0].cpu().numpy()
+        if self.glass.pose.to_transformation_matrix()[0, 2, 2] < np.cos(np.deg2rad(UPRIGHT_TILT)):
+            return "the glass fell over"
+        for coaster, key in ((self.target_coaster, "target_coaster"), (self.distractor_coaster, "distractor_coaster")):
+            distance = float(np.linalg.norm(glass[:2] - coaster.pose.p[0, :2].cpu().numpy()))
+            if distance < coaster_support_radius(self.env_spec.objects[key]) + self.geometry.diameter / 2:
+                return f"the glass stands {distance * 100:.1f} cm from the centre of the {key.replace('_', ' ')}"
+        return ""
+
     # --- expert -----------------------------------------------------------------------------
     def expert_script(self, expert: ScriptedExpert, error: ErrorSpec | None) -> None:
         kind = error.kind if error else None
-        glass = self.glass.pose.p[0].numpy().astype(np.float64)
+        glass = self.glass.pose.p[0].cpu().numpy().astype(np.float64)
         height = self.geometry.height
         grasp = glass + np.array([0.0, 0.0, height - RIM_CLEARANCE])
         hover = glass + np.array([0.0, 0.0, height + expert.rng.uniform(0.05, 0.09)])
@@ -168,41 +207,53 @@ class MoveGlassCupEnv(AEDBaseEnv):
         carry = expert.speed * 0.8  # water on board: slower, with smooth starts and stops
         carry_to(expert, expert.tcp + np.array([0.0, 0.0, expert.rng.uniform(0.07, 0.11)]), carry)
 
-        coaster = self.target_coaster.pose.p[0].numpy().astype(np.float64)
+        coaster = self.target_coaster.pose.p[0].cpu().numpy().astype(np.float64)
         coaster_top = coaster[2] + self.env_spec.objects["target_coaster"].size[1]
         put_down = np.array([coaster[0], coaster[1], coaster_top + grasp[2] - glass[2] + 0.004])
-        if kind == "off_coaster":
+        if kind == "off_coaster":  # head for a spot on the table instead
             expert.mark_error()
-            put_down[:2] = self._table_spot(expert.rng)
+            put_down[:2] = self._table_spot(expert.error_rng, expert.tcp[:2], put_down[:2], glass[:2])
             put_down[2] = grasp[2] - glass[2] + 0.005
-        if kind == "spill":  # part of the way over, jerk the glass up and down: the water flies out
-            way = put_down[:2] - expert.tcp[:2]
-            carry_to(expert, expert.tcp + np.array([*way * expert.rng.uniform(0.2, 0.5), 0.0]), carry)
-            expert.mark_error()
-            jerk(expert, expert.rng)
         above = np.array([put_down[0], put_down[1], expert.tcp[2]]) + expert.jitter(0.01)
-        carry_to(expert, above, carry)
+        # `spill`: carried as the clean expert does until part of the way over, then a lurch
+        stop_at = expert.error_rng.uniform(0.25, 0.5) if kind == "spill" else None
+        if carry_to(expert, above, carry, stop_at=stop_at):
+            expert.mark_error()
+            lurch(expert, above)
+            carry_to(expert, above, carry)
         carry_to(expert, put_down, carry * 0.6)
         expert.open_gripper()
         expert.move_by([0.0, 0.0, 0.07])
         expert.wait(4)
 
-    def _table_spot(self, rng: np.random.Generator) -> np.ndarray:
-        """A spot on the table clear of both coasters, near the target (a missed placement)."""
-        target = self.target_coaster.pose.p[0, :2].numpy().astype(np.float64)
+    def _table_spot(
+        self, rng: np.random.Generator, here: np.ndarray, target: np.ndarray, start: np.ndarray
+    ) -> np.ndarray:
+        """A spot on the table clear of both coasters, 12-22 cm from the target (a missed
+        placement), in a direction from `here` at least `OFF_HEADING` degrees off the target's
+        (or as far off as there is): the path visibly heads elsewhere from its first steps."""
         radius = self.geometry.diameter / 2 + 0.015
         clear = [
-            (*c.pose.p[0, :2].numpy().astype(np.float64), self.env_spec.objects[k].size[0] / np.sqrt(2))
+            (*c.pose.p[0, :2].cpu().numpy().astype(np.float64), self.env_spec.objects[k].size[0] / np.sqrt(2))
             for c, k in ((self.target_coaster, "target_coaster"), (self.distractor_coaster, "distractor_coaster"))
         ]
-        glass = self.glass.pose.p[0, :2].numpy().astype(np.float64)
-        for _ in range(200):
-            angle, distance = rng.uniform(0, 2 * np.pi), rng.uniform(0.12, 0.2)
+        heading = target - here
+        best, best_cos = None, 1.0
+        for _ in range(400):
+            angle, distance = rng.uniform(0, 2 * np.pi), rng.uniform(0.12, 0.22)
             spot = target + distance * np.array([np.cos(angle), np.sin(angle)])
             inside = TABLE_REACH[0] < spot[0] < TABLE_REACH[1] and TABLE_REACH[2] < spot[1] < TABLE_REACH[3]
-            if inside and all(np.hypot(*(spot - [x, y])) > r + radius for x, y, r in clear):
+            if not inside or any(np.hypot(*(spot - [x, y])) <= r + radius for x, y, r in clear):
+                continue
+            way = spot - here
+            cos = way @ heading / max(np.linalg.norm(way) * np.linalg.norm(heading), 1e-9)
+            if cos < np.cos(np.deg2rad(OFF_HEADING)):
                 return spot
-        return glass  # nowhere else: put it back where it stood
+            if cos < best_cos:
+                best, best_cos = spot, cos
+        if best is not None:  # far from the target, no spot turns that much: the most turned one
+            return best
+        return start  # nowhere else: put it back where it stood
 
 
 def sample_glass(rng: np.random.Generator, split: str, hue: tuple[float, ...]) -> ObjectSpec:
@@ -215,7 +266,7 @@ def sample_glass(rng: np.random.Generator, split: str, hue: tuple[float, ...]) -
     )
     spots = drop_spots(spec, np.random.default_rng(0))
     level = rng.uniform(*FILL) * spec.size[1]
-    count = int(np.clip((spots[:, 2] + spec.size[3] <= level).sum(), 8, 20))
+    count = int(np.clip((spots[:, 2] + spec.size[3] <= level).sum(), 8, MAX_DROPS))
     return ObjectSpec(spec.shape, (*spec.size[:2], float(count), spec.size[3]), spec.material)
 
 
@@ -234,19 +285,31 @@ def interp(x: torch.Tensor, xp: torch.Tensor, fp: torch.Tensor) -> torch.Tensor:
     return f0 + (f1 - f0) * (x - x0) / (x1 - x0).clamp_min(1e-9)
 
 
-def carry_to(expert: ScriptedExpert, target: np.ndarray, speed: float, ramp: int = 8, settle: int = 10) -> None:
-    """Follow a planned path to `target` with raised-cosine speed ramps: no jolt spills the water."""
+def carry_to(
+    expert: ScriptedExpert, target: np.ndarray, speed: float, ramp: int = 8, settle: int = 10,
+    stop_at: float | None = None,
+) -> bool:  # fmt: skip
+    """Follow a planned path to `target` with raised-cosine speed ramps: no jolt spills the water.
+
+    With `stop_at` (a fraction of the path), stop there at cruise speed, with no ramp down, and
+    return True (the `spill` error's departure); else return False.
+    """
     path = expert.plan(np.asarray(target, dtype=np.float64))
     lengths = np.linalg.norm(np.diff(path, axis=0), axis=1)
     arc, total = np.concatenate([[0.0], np.cumsum(lengths)]), float(lengths.sum())
     for s in np.cumsum(speed_profile(total, speed, ramp)):
+        if stop_at is not None and s > stop_at * total:
+            return True
         waypoint = np.stack([np.interp(s, arc, path[:, i]) for i in range(3)])
         expert.step(waypoint - expert.tcp)
+    if stop_at is not None:  # too short a path to stop on the way: stop at its end
+        return True
     for _ in range(settle):
         error = target - expert.tcp
         if np.linalg.norm(error) < 0.005:
             break
         expert.step(error * 0.5)
+    return False
 
 
 def speed_profile(length: float, speed: float, ramp: int) -> np.ndarray:
@@ -259,17 +322,26 @@ def speed_profile(length: float, speed: float, ramp: int) -> np.ndarray:
     return steps * length / steps.sum()
 
 
-def jerk(expert: ScriptedExpert, rng: np.random.Generator, max_cycles: int = 12) -> None:
-    """Shake the glass with maximal alternating vertical deltas until water flies out (`spill`).
-
-    One shake rarely throws a drop over the rim, so the expert keeps shaking (at least a
-    few cycles) until a drop is out, or until the glass has left the grasp (also a failure).
-    """
+def lurch(expert: ScriptedExpert, toward: np.ndarray, max_dips: int = 4) -> None:
+    """A jerky carry (`spill`): the arm jerks the glass up and at once down at full speed, so
+    the water leaves the floor and rises above the rim, then slides it sideways from under the
+    water. Repeated back to back (at most `max_dips` times, alternately ahead and back) until a
+    drop is out or the glass has left the grasp (also a failure), then back to the carrying
+    height. One vertical jerk throws the water about 6 cm up the glass (the arm tops out near
+    0.75 m/s), so the glasses are filled to within 3-6 cm of the rim; still about one episode
+    in eight keeps every drop (`error_outcome` rejects it)."""
     base = expert.base
-    min_cycles = int(rng.integers(2, 4))
-    for cycle in range(1, max_cycles + 1):
-        for direction in (1.0, -1.0):  # three full-speed steps each way: fast enough to throw drops
-            for _ in range(3):
-                expert.step(np.array([0.0, 0.0, direction * MAX_DELTA]))
-        if cycle >= min_cycles and (bool(base.spilled[0]) or not bool(base.agent.is_grasping(base.glass)[0])):
-            return
+    carry_z = expert.tcp[2]
+    for dip in range(max_dips):
+        way = np.asarray(toward, dtype=np.float64)[:2] - expert.tcp[:2]
+        side = way / max(np.linalg.norm(way), 1e-9) * (1.0 if dip % 2 == 0 else -1.0)
+        for _ in range(DIP_UP):
+            expert.step(np.array([0.0, 0.0, MAX_DELTA]))
+        for _ in range(DIP_DOWN):  # straight down: the water leaves the floor
+            expert.step(np.array([0.0, 0.0, -MAX_DELTA]))
+        for _ in range(DIP_ASIDE):  # and, still going down, slides from under the water
+            expert.step(np.array([*side, -1.0]) * MAX_DELTA)
+        if bool(base.spilled[0]) or not bool(base.agent.is_grasping(base.glass)[0]):
+            break
+    for _ in range(3):  # back to the carrying height
+        expert.step(np.array([0.0, 0.0, carry_z - expert.tcp[2]]))

@@ -17,6 +17,15 @@ VESSEL_SHAPES = {"base": ("mug_cylinder", "cup_tapered"), "novel": ("mug_barrel"
 BOWL_SHAPES = {"base": ("bowl_round", "bowl_straight"), "novel": ("bowl_basin", "bowl_lipped")}
 MUG_REGION = (-0.22, -0.08, -0.22, 0.22)  # x0, x1, y0, y1 on the table top
 BOWL_REGION = (-0.02, 0.14, -0.26, 0.26)
+IN_BOWL_RADIUS = 0.3  # the mug is in a bowl with its centre within this fraction of the diameter
+IN_BOWL_HEIGHT = 0.6  # ... and its base below this fraction of the bowl's height above it
+AT_REST_SPEED = 0.02  # m/s: the mug is at rest (settled) below this linear speed
+AT_REST_SPIN = 0.3  # rad/s: ... and below this angular speed
+UPRIGHT_TILT = 25.0  # degrees: the mug is upright with its axis within this of vertical
+LIFTED = 0.03  # m: the mug is lifted with its base this high
+UNTOUCHED = 0.01  # m: `no_grasp` leaves the mug within this of its start (it never moved)
+FINGER_REACH = 0.05  # m: an open finger's outer face from the TCP along the finger axis (y)
+REACH_Y = 0.26  # m: the top-down gripper comes down easily within this of the robot's axis
 
 
 @register_task
@@ -33,14 +42,21 @@ class PickPlaceEnv(AEDBaseEnv):
       fingers), both bowl positions (which side the target is on varies)
 
     **Success Conditions:**
-    - the mug rests inside the target bowl, released by the gripper
+    - the mug is settled inside the target bowl, released by the gripper: its centre within
+      0.3 bowl diameters of the bowl's axis, its base below 0.6 bowl heights above the bowl's,
+      at rest (below 2 cm/s and 0.3 rad/s) and upright (axis within 25 degrees of vertical)
 
     **Stages:** picked (lifted while grasped), placed (success).
 
-    **Behaviour Errors:**
-    - `no_grasp`: the gripper closes beside the mug; it is never picked up
-    - `miss_place`: the mug is released away from the target bowl
-    - `wrong_bowl`: the mug is placed into the distractor bowl
+    **Behaviour Errors** (each episode's end is checked to show its failure, `error_outcome`):
+    - `no_grasp`: the gripper comes down beside the mug, both fingers clear of it (the open
+      fingers' outer faces 1.5-2.5 cm off its side, on the side away from the bowls) and
+      closes on nothing (checked: the mug was never lifted nor moved by 1 cm)
+    - `miss_place`: the transport to the target bowl stops 13-17 cm short of the bowl's centre
+      and the mug is released there, on the table (checked: released, its centre outside both
+      bowls' rims); the onset is where the transport stops
+    - `wrong_bowl`: the mug is placed into the distractor bowl (checked: settled there as a
+      success would be in the target bowl)
     """
 
     task_name = "PickPlace"
@@ -86,19 +102,30 @@ class PickPlaceEnv(AEDBaseEnv):
         yaw = rng.uniform(-0.5, 0.5) + (np.pi if rng.random() < 0.5 else 0.0)
         self.vessel.set_pose(Pose.create_from_pq(p=[x, y, 0.001], q=rotation_z(yaw)))
         self.stage_reached = torch.zeros(self.num_envs, dtype=torch.int32, device=self.device)
+        self.vessel_start = self.vessel.pose.p.clone()
+        self.vessel_travel = torch.zeros(self.num_envs, device=self.device)  # farthest from the start so far
 
     # --- evaluation -------------------------------------------------------------------------
     def _in_bowl(self, bowl_key: str) -> torch.Tensor:
+        """The mug is settled in the bowl: inside it, at rest and upright."""
         bowl = self.target_bowl if bowl_key == "target_bowl" else self.distractor_bowl
         diameter, height = self.env_spec.objects[bowl_key].size
         offset = self.vessel.pose.p - bowl.pose.p
-        inside_xy = torch.linalg.norm(offset[:, :2], dim=1) < diameter * 0.3
-        resting = offset[:, 2] < height * 0.6
-        return inside_xy & resting
+        inside_xy = torch.linalg.norm(offset[:, :2], dim=1) < diameter * IN_BOWL_RADIUS
+        low = offset[:, 2] < height * IN_BOWL_HEIGHT
+        return inside_xy & low & self._settled()
+
+    def _settled(self) -> torch.Tensor:
+        still = torch.linalg.norm(self.vessel.linear_velocity, dim=1) < AT_REST_SPEED
+        still &= torch.linalg.norm(self.vessel.angular_velocity, dim=1) < AT_REST_SPIN
+        upright = self.vessel.pose.to_transformation_matrix()[:, 2, 2] > np.cos(np.deg2rad(UPRIGHT_TILT))
+        return still & upright
 
     def evaluate(self) -> dict[str, torch.Tensor]:
         grasped = self.agent.is_grasping(self.vessel)
-        lifted = self.vessel.pose.p[:, 2] > 0.03
+        lifted = self.vessel.pose.p[:, 2] > LIFTED
+        moved = torch.linalg.norm(self.vessel.pose.p - self.vessel_start, dim=1)
+        self.vessel_travel = torch.maximum(self.vessel_travel, moved)
         placed = self._in_bowl("target_bowl") & ~grasped
         stage = torch.where(placed, 2, torch.where(grasped & lifted, 1, 0)).to(torch.int32)
         self.stage_reached = torch.maximum(self.stage_reached, stage)
@@ -112,19 +139,37 @@ class PickPlaceEnv(AEDBaseEnv):
     def state_entities(self) -> dict:
         return {"vessel": self.vessel, "target_bowl": self.target_bowl, "distractor_bowl": self.distractor_bowl}
 
+    def error_outcome(self, kind: str) -> str:
+        super().error_outcome(kind)
+        info = self.evaluate()
+        if bool(info["is_grasped"][0]):
+            return "the gripper still holds the mug"
+        mug = self.vessel.pose.p[0].cpu().numpy()
+        if kind == "no_grasp":
+            travel = float(self.vessel_travel[0])
+            return "" if travel < UNTOUCHED else f"the mug moved by {travel * 100:.1f} cm"
+        if kind == "wrong_bowl":
+            return "" if bool(self._in_bowl("distractor_bowl")[0]) else "the mug is not settled in the distractor bowl"
+        for bowl, key in ((self.target_bowl, "target_bowl"), (self.distractor_bowl, "distractor_bowl")):
+            distance = float(np.linalg.norm(mug[:2] - bowl.pose.p[0, :2].cpu().numpy()))
+            if distance < self.env_spec.objects[key].size[0] / 2:
+                return f"the mug is {distance * 100:.1f} cm from the centre of the {key.replace('_', ' ')}"
+        return ""
+
     # --- expert -----------------------------------------------------------------------------
     def expert_script(self, expert: ScriptedExpert, error: ErrorSpec | None) -> None:
         kind = error.kind if error else None
-        mug = self.vessel.pose.p[0].numpy().astype(np.float64)
+        mug = self.vessel.pose.p[0].cpu().numpy().astype(np.float64)
         diameter, height = self.env_spec.objects["vessel"].size
         grasp = mug + np.array([0.0, 0.0, height * 0.55])
         hover = grasp + np.array([0.0, 0.0, expert.rng.uniform(0.08, 0.14)])
 
         expert.move_to(hover + expert.jitter(0.02))
-        if kind == "no_grasp":  # close the fingers beside the mug instead of around it
+        if kind == "no_grasp":  # move aside, then come down beside the mug, both fingers clear of it
             expert.mark_error()
-            side = np.array([0.0, np.sign(expert.rng.uniform(-1, 1)) * (diameter / 2 + 0.035), 0.0])
-            expert.move_to(grasp + side, speed=expert.speed * 0.6)
+            side = self._clear_side(mug, diameter / 2 + FINGER_REACH + expert.error_rng.uniform(0.015, 0.025))
+            expert.move_to(np.array([grasp[0], grasp[1] + side, expert.tcp[2]]), speed=expert.speed * 0.6)
+            expert.move_to(grasp + np.array([0.0, side, 0.0]), speed=expert.speed * 0.6)
         else:
             expert.move_to(grasp, speed=expert.speed * 0.6)
         expert.close_gripper()
@@ -132,18 +177,37 @@ class PickPlaceEnv(AEDBaseEnv):
         expert.move_to(expert.tcp + np.array([0.0, 0.0, lift]), speed=expert.speed * 0.7)
 
         bowl_key = "distractor_bowl" if kind == "wrong_bowl" else "target_bowl"
-        bowl = (self.distractor_bowl if bowl_key == "distractor_bowl" else self.target_bowl).pose.p[0].numpy()
+        bowl = (self.distractor_bowl if bowl_key == "distractor_bowl" else self.target_bowl).pose.p[0].cpu().numpy()
         bowl_height = self.env_spec.objects[bowl_key].size[1]
         release = np.array([bowl[0], bowl[1], bowl_height + height * 0.55 + 0.02])
         if kind == "wrong_bowl":
             expert.mark_error()
-        elif kind == "miss_place":  # drop it short of the bowl, on the table
-            expert.mark_error()
-            away = release[:2] - expert.tcp[:2]
-            release[:2] -= away / max(np.linalg.norm(away), 1e-6) * expert.rng.uniform(0.13, 0.17)
-            release[2] = height * 0.55 + 0.03
-        expert.move_to(np.array([release[0], release[1], expert.tcp[2]]) + expert.jitter(0.015))
+        stop_before = None
+        if kind == "miss_place":  # head for the target bowl as the clean expert does, stop short
+            short = expert.error_rng.uniform(0.13, 0.17)
+            stop_before = lambda waypoint: np.linalg.norm(waypoint[:2] - bowl[:2]) < short  # noqa: E731
+        above = np.array([release[0], release[1], expert.tcp[2]]) + expert.jitter(0.015)
+        if expert.move_to(above, stop_before=stop_before):
+            expert.mark_error()  # the transport stops here: the mug goes down on the table
+            release = np.array([*expert.tcp[:2], height * 0.55 + 0.015])
         expert.move_to(release, speed=expert.speed * 0.6)
         expert.open_gripper()
         expert.move_by([0.0, 0.0, 0.08])
         expert.wait(4)
+
+    def _clear_side(self, mug: np.ndarray, offset: float) -> float:
+        """`offset` toward the side (+-y) of the mug where the open gripper is farthest from the
+        bowls, within the arm's easy reach (|y| < REACH_Y) where that side is."""
+        bowls = [
+            (self.target_bowl.pose.p[0, :2].cpu().numpy(), self.env_spec.objects["target_bowl"].size[0] / 2),
+            (self.distractor_bowl.pose.p[0, :2].cpu().numpy(), self.env_spec.objects["distractor_bowl"].size[0] / 2),
+        ]
+
+        def clearance(sign: float) -> float:
+            hand = mug[:2] + np.array([0.0, sign * offset])
+            return min(float(np.linalg.norm(hand - centre)) - radius for centre, radius in bowls)
+
+        sides = [sign for sign in (1.0, -1.0) if abs(mug[1] + sign * offset) < REACH_Y]
+        if not sides:
+            return -np.sign(mug[1]) * offset
+        return max(sides, key=clearance) * offset

@@ -39,14 +39,17 @@ class PressButtonEnv(AEDBaseEnv):
     - per episode: button position in a 22 x 40 cm region and its yaw, distractor poses
 
     **Success Conditions:**
-    - the cap has reached the bottom of its travel at some step of the episode (latched:
-      the spring pushes it back up once released)
+    - the cap has reached the bottom of its travel (within 2 mm) at some step of the episode
+      (latched: the spring pushes it back up once released)
 
     **Stages:** pressed (success).
 
-    **Behaviour Errors:**
-    - `no_touch`: the gripper comes down beside the button and never touches it
-    - `not_fully_pressed`: the cap is pushed only part of its travel, then released
+    **Behaviour Errors** (each episode's end is checked to show its failure, `error_outcome`):
+    - `no_touch`: the gripper comes down beside the button and never touches it (the cap
+      never moved by 1 mm)
+    - `not_fully_pressed`: the press stops short, 35-65% of the travel down, then the gripper
+      lets go (the cap went down at least 20% of its travel, never within 2 mm of the bottom);
+      the onset is where the press stops, the clean press having been followed until then
     """
 
     task_name = "PressButton"
@@ -102,6 +105,7 @@ class PressButtonEnv(AEDBaseEnv):
         self.button.set_qpos(torch.zeros((self.num_envs, 1)))
         self.place_distractors(rng, DISTRACTOR_REGION, [(x, y, g.footprint + HAND_CLEARANCE)])
         self.pressed = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        self.deepest = torch.zeros(self.num_envs, device=self.device)  # the deepest press so far (m)
 
     # --- evaluation -------------------------------------------------------------------------
     def press_depth(self) -> torch.Tensor:
@@ -111,6 +115,7 @@ class PressButtonEnv(AEDBaseEnv):
     def evaluate(self) -> dict[str, torch.Tensor]:
         depth = self.press_depth()
         self.pressed = self.pressed | (depth >= self.geometry.travel - FULL_PRESS_MARGIN)
+        self.deepest = torch.maximum(self.deepest, depth)
         return {
             "success": self.pressed.clone(),
             "fail": torch.zeros_like(self.pressed),
@@ -131,7 +136,7 @@ class PressButtonEnv(AEDBaseEnv):
     def expert_script(self, expert: ScriptedExpert, error: ErrorSpec | None) -> None:
         kind = error.kind if error else None
         g = self.geometry
-        centre = self.button.pose.p[0].numpy().astype(np.float64)
+        centre = self.button.pose.p[0].cpu().numpy().astype(np.float64)
         top = centre + np.array([0.0, 0.0, g.cap_top])
         hover = top + np.array([0.0, 0.0, expert.rng.uniform(0.07, 0.13)])
 
@@ -150,15 +155,29 @@ class PressButtonEnv(AEDBaseEnv):
             + expert.jitter(0.004)
         )
         expert.move_to(contact, speed=expert.speed * 0.6)
-        depth = g.travel + OVERPRESS
-        if kind == "not_fully_pressed":  # stop part of the way down, then let go
-            expert.mark_error()
-            depth = g.travel * expert.rng.uniform(0.35, 0.65)
-        press = np.array([contact[0], contact[1], top[2] + FINGERTIP_DROP - depth])
-        expert.move_to(press, speed=expert.speed * 0.35, tol=0.003)
+        press = np.array([contact[0], contact[1], top[2] + FINGERTIP_DROP - g.travel - OVERPRESS])
+        stop_before = None
+        if kind == "not_fully_pressed":  # press as the clean expert does, stop part of the way down
+            partial = g.travel * expert.error_rng.uniform(0.35, 0.65) - expert.speed * 0.35 / 2
+
+            def stop_before(waypoint: np.ndarray) -> bool:  # the cap is part of the way down
+                return float(self.press_depth()[0]) >= partial
+        if expert.move_to(press, speed=expert.speed * 0.35, tol=0.003, stop_before=stop_before):
+            expert.mark_error()  # the press stops here: the clean expert would go on down
         expert.wait(int(expert.rng.integers(2, 6)))
         expert.move_by([0.0, 0.0, expert.rng.uniform(0.06, 0.1)])
         expert.wait(4)
+
+    def error_outcome(self, kind: str) -> str:
+        super().error_outcome(kind)
+        deepest, travel = float(self.deepest[0]), self.geometry.travel
+        if bool(self.pressed[0]):
+            return f"the cap reached the bottom of its travel ({deepest * 1000:.1f} mm)"
+        if kind == "no_touch" and deepest >= 0.001:
+            return f"the cap was pushed {deepest * 1000:.1f} mm"
+        if kind == "not_fully_pressed" and deepest < 0.2 * travel:
+            return f"the cap went down only {deepest * 1000:.1f} mm of {travel * 1000:.1f}"
+        return ""
 
     @staticmethod
     def _beside(
