@@ -1,0 +1,157 @@
+"""The interface every error detector implements, and the pieces the visual baselines share.
+
+A detector reads an agent rollout frame by frame and says, per frame, how likely a behaviour
+error is (`output = "probability"`) or how far the frame lies from normal behaviour
+(`output = "distance"`). It is used two ways, which agree to 1e-5 in eval mode:
+
+- offline, batched: `score(rollouts, demos, policy_features) -> (B, T)`;
+- online: `reset(demos)` once, then `step(frame, policy_features) -> float` per frame, with
+  constant state per step (LSTM states, or cached keys/values of a causal decoder).
+
+Policy-dependent detectors (`requires_policy`) read the frozen policy's per-frame history
+features f_h (B, T, Dh) and task embedding f_zeta (B, T, Dz) instead of frames; online they
+take the pair the policy's `features()` returns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar, Literal
+
+import torch
+from torch import nn
+
+Batch = dict[str, Any]
+
+PROFILES = ("mini", "paper")
+
+
+def check_profile(profile: str) -> None:
+    if profile not in PROFILES:
+        raise ValueError(f"profile={profile!r}: known {list(PROFILES)}")
+
+
+def split_features(policy_features: Any, what: str = "policy_features") -> tuple[torch.Tensor, torch.Tensor]:
+    """(history, task) from a `PolicyFeatures`, a (history, task) pair, or a dict with those keys."""
+    if policy_features is None:
+        raise ValueError(f"{what} is None: this detector reads the policy's features (history, task)")
+    if hasattr(policy_features, "history") and hasattr(policy_features, "task"):
+        return policy_features.history, policy_features.task
+    if isinstance(policy_features, dict) and {"history", "task"} <= policy_features.keys():
+        return policy_features["history"], policy_features["task"]
+    if isinstance(policy_features, (tuple, list)) and len(policy_features) == 2:
+        return policy_features[0], policy_features[1]
+    raise TypeError(f"{what} of type {type(policy_features).__name__}: expected PolicyFeatures, (history, task) or a dict")
+
+
+class ErrorDetector(nn.Module):
+    """Base class: see the module docstring. Subclasses set the class attributes and implement
+    `loss`, `score`, `reset` and `step`."""
+
+    name: ClassVar[str] = ""
+    requires_policy: ClassVar[bool] = False
+    output: ClassVar[Literal["probability", "distance"]] = "probability"
+    trains_on: ClassVar[Literal["both", "successes"]] = "both"
+
+    def __init__(self, config: Any):
+        super().__init__()
+        self.config = config
+
+    # -- training ---------------------------------------------------------------------------
+    def loss(self, batch: Batch, policy_features: Any = None) -> tuple[torch.Tensor, dict[str, float]]:
+        """Training loss on one iteration's batch (`aed_models.data.EnvironmentIterations`).
+
+        `policy_features` (policy-dependent detectors): the rollouts' (history, task) features,
+        aligned with `batch["rollouts"]["mask"]`. Returns the loss and its named parts.
+        """
+        raise NotImplementedError
+
+    # -- inference --------------------------------------------------------------------------
+    def score(self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None) -> torch.Tensor:
+        """(B, T) per-frame scores of padded rollouts (`frames`, `mask`); 0 on padding."""
+        raise NotImplementedError
+
+    def reset(self, demos: Batch | None = None) -> None:
+        """Start a new rollout given this environment's demonstrations (`frames`, `mask`)."""
+        raise NotImplementedError
+
+    def step(self, frame: torch.Tensor | None = None, policy_features: tuple[torch.Tensor, torch.Tensor] | None = None) -> float:
+        """Score of the newest frame (4, H, W), or of the policy's newest (f_h, f_zeta)."""
+        raise NotImplementedError
+
+    # -- bookkeeping ------------------------------------------------------------------------
+    def num_parameters(self, trainable_only: bool = False) -> int:
+        return sum(p.numel() for p in self.parameters() if p.requires_grad or not trainable_only)
+
+    def config_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self.config)
+
+    def _require_reset(self, state: Any) -> None:
+        if state is None:
+            raise RuntimeError(f"{self.name}: call reset(demos) before step()")
+
+
+def rollout_mask(rollouts: Batch) -> torch.Tensor:
+    """The (B, T) boolean mask of a rollouts dict, checked."""
+    if "mask" not in rollouts:
+        raise KeyError("rollouts has no 'mask' (B, T): pad with aed_models.data.pad_sequences")
+    return rollouts["mask"].bool()
+
+
+def demo_mask(demos: Batch | None, name: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """(frames (N, L, 4, H, W), mask (N, L)) of a demos dict, checked."""
+    if demos is None or "frames" not in demos:
+        raise ValueError(f"{name} needs demonstrations: a dict with frames (N, L, 4, H, W) and mask (N, L)")
+    frames = demos["frames"]
+    if frames.dim() != 5:
+        raise ValueError(f"demos['frames'] of shape {tuple(frames.shape)}: expected (N, L, 4, H, W)")
+    mask = demos.get("mask")
+    if mask is None:
+        mask = torch.ones(frames.shape[:2], dtype=torch.bool, device=frames.device)
+    if not mask.any(dim=1).all():
+        raise ValueError(f"{name}: a demonstration has no frame")
+    return frames, mask.bool()
+
+
+def check_frame(frame: torch.Tensor | None, name: str) -> torch.Tensor:
+    """A single frame (4, H, W) as a batch of one (1, 4, H, W)."""
+    if frame is None:
+        raise ValueError(f"{name} reads frames: step(frame=(4, H, W)) got None")
+    if frame.dim() != 3:
+        raise ValueError(f"frame of shape {tuple(frame.shape)}: expected (4, H, W)")
+    return frame[None]
+
+
+@dataclasses.dataclass
+class VisualDetectorConfig:
+    """Fields shared by the policy-independent baselines: their own per-frame visual head.
+
+    Args:
+        arch: `resnet18` (paper) or `small_cnn` (mini, CPU-sized).
+        feature_dim: size of the visual head's output.
+        dropout: dropout after the head's FC (the paper: 0.5).
+        width: first-layer width of `small_cnn`.
+    """
+
+    arch: str = "small_cnn"
+    feature_dim: int = 256
+    dropout: float = 0.5
+    width: int = 32
+
+    def __post_init__(self) -> None:
+        self.visual_head_config()  # validates arch, sizes, dropout
+
+    def visual_head_config(self) -> Any:
+        from aed_models.nn import VisualHeadConfig
+
+        return VisualHeadConfig(arch=self.arch, out_dim=self.feature_dim, dropout=self.dropout, width=self.width)
+
+
+def positive(name: str, value: int | float) -> None:
+    if value <= 0:
+        raise ValueError(f"{name}={value}: must be > 0")
+
+
+def nonnegative(name: str, value: int | float) -> None:
+    if value < 0:
+        raise ValueError(f"{name}={value}: must be >= 0")

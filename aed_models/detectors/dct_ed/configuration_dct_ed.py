@@ -1,0 +1,47 @@
+"""Configuration of DCTED, the DCT-style transformer baseline."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from aed_models.detectors.base import VisualDetectorConfig, check_profile, positive
+
+
+@dataclass
+class DCTEDConfig(VisualDetectorConfig):
+    """DCTED: visual head, transformer encoder over demonstration frames, causal decoder over
+    the rollout attending to them (DCT's settings: 2 + 2 layers, 8 heads, eps 1e-5, dropout 0.1).
+
+    Args:
+        num_heads: attention heads (feature_dim must be divisible by it).
+        encoder_layers, decoder_layers: layer counts.
+        ff_dim: feed-forward width (paper profile 768: ~3.2M on top of the head, 14.5M in
+            all, as the paper's 14.49M).
+        attn_dropout: dropout inside the transformer layers.
+        norm_eps: LayerNorm epsilon.
+    """
+
+    num_heads: int = 8
+    encoder_layers: int = 2
+    decoder_layers: int = 2
+    ff_dim: int = 768
+    attn_dropout: float = 0.1
+    norm_eps: float = 1e-5
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("num_heads", "decoder_layers", "ff_dim", "norm_eps"):
+            positive(name, getattr(self, name))
+        if self.encoder_layers < 0:
+            raise ValueError(f"encoder_layers={self.encoder_layers}: must be >= 0")
+        if self.feature_dim % self.num_heads:
+            raise ValueError(f"feature_dim={self.feature_dim} is not divisible by num_heads={self.num_heads}")
+        if not 0.0 <= self.attn_dropout < 1.0:
+            raise ValueError(f"attn_dropout={self.attn_dropout}: must lie in [0, 1)")
+
+    @classmethod
+    def for_profile(cls, profile: str) -> DCTEDConfig:
+        check_profile(profile)
+        if profile == "paper":
+            return cls(arch="resnet18")
+        return cls(arch="small_cnn", feature_dim=128, num_heads=4, ff_dim=256)

@@ -1,0 +1,33 @@
+"""Configuration of LSTMED, the rollout-only temporal baseline."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from aed_models.detectors.base import VisualDetectorConfig, check_profile, positive
+
+
+@dataclass
+class LSTMEDConfig(VisualDetectorConfig):
+    """LSTMED: visual head -> LSTM -> MLP, no demonstrations.
+
+    Args:
+        hidden_dim: LSTM state size (paper profile 256: ~0.54M on top of the head, 11.85M in
+            all as in the paper).
+        num_layers: stacked LSTM layers.
+        head_dim: hidden size of the classifier after the LSTM.
+    """
+
+    hidden_dim: int = 256
+    num_layers: int = 1
+    head_dim: int = 64
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("hidden_dim", "num_layers", "head_dim"):
+            positive(name, getattr(self, name))
+
+    @classmethod
+    def for_profile(cls, profile: str) -> LSTMEDConfig:
+        check_profile(profile)
+        return cls(arch="resnet18") if profile == "paper" else cls(arch="small_cnn", hidden_dim=128)

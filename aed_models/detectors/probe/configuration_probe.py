@@ -1,0 +1,57 @@
+"""Configuration of PrObe (Pattern Observer), the paper's policy-dependent detector."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from aed_models.detectors.base import check_profile, nonnegative, positive
+
+
+@dataclass
+class ProbeConfig:
+    """PrObe's sizes and objective weights.
+
+    The paper gives the architecture and the three objectives but not the weights, margin or
+    clipping; the defaults below are ours. With the paper's policy features (Dh = Dz = 256)
+    and `hidden_dim=256`, PrObe has about 0.69M parameters (paper: 0.65M).
+
+    Args:
+        history_dim, task_dim: sizes of the policy's f_h and f_zeta (set from the policy).
+        hidden_dim: LSTM (pattern flow) and transformed task-embedding size.
+        embed_dim: size of the logit embedding (fusion output) that L_tem acts on.
+        use_pattern_extractor: False gives the ablation's "naive" model: FC + instance norm
+            on f_h instead of unit-norm, gate and sign.
+        lambda_cls, lambda_pat, lambda_tem: weights of L_cls, L_pat, L_tem (0 switches one off).
+        margin: m of the triplet loss.
+        alpha: how much temporal distance moves the margin, m_t = m (1 - alpha (d_ap - d_an)).
+        clip: temporal distances (as fractions of the rollout's length) are clipped here.
+        triplets_per_rollout: anchors sampled in each failed rollout per iteration.
+        norm_eps: epsilon of the unit-norm and instance norms.
+    """
+
+    history_dim: int = 256
+    task_dim: int = 256
+    hidden_dim: int = 256
+    embed_dim: int = 64
+    use_pattern_extractor: bool = True
+    lambda_cls: float = 1.0
+    lambda_pat: float = 0.1
+    lambda_tem: float = 0.5
+    margin: float = 1.0
+    alpha: float = 0.5
+    clip: float = 0.5
+    triplets_per_rollout: int = 16
+    norm_eps: float = 1e-5
+
+    def __post_init__(self) -> None:
+        for name in ("history_dim", "task_dim", "hidden_dim", "embed_dim", "triplets_per_rollout", "clip", "norm_eps"):
+            positive(name, getattr(self, name))
+        for name in ("lambda_cls", "lambda_pat", "lambda_tem", "margin", "alpha"):
+            nonnegative(name, getattr(self, name))
+        if self.lambda_cls + self.lambda_pat + self.lambda_tem == 0:
+            raise ValueError("lambda_cls, lambda_pat and lambda_tem are all 0: nothing to train")
+
+    @classmethod
+    def for_profile(cls, profile: str) -> ProbeConfig:
+        check_profile(profile)
+        return cls() if profile == "paper" else cls(hidden_dim=128, embed_dim=32)

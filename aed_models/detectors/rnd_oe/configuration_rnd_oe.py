@@ -1,0 +1,38 @@
+"""Configuration of RND-OE, a failure-free detector on policy features (beyond the paper)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from aed_models.detectors.base import check_profile, positive
+
+
+@dataclass
+class RNDOEConfig:
+    """Random network distillation on the policy's per-frame history features.
+
+    Args:
+        history_dim: size of the policy's f_h (set from the policy).
+        hidden_dim: hidden width of the target and predictor MLPs.
+        out_dim: size of the random target's output.
+        scale_momentum: momentum of the running mean of the training (success) error that
+            scores are divided by, so that ~1 means "as familiar as training successes".
+        norm_eps: epsilon of the unit norm of f_h.
+    """
+
+    history_dim: int = 256
+    hidden_dim: int = 256
+    out_dim: int = 64
+    scale_momentum: float = 0.99
+    norm_eps: float = 1e-5
+
+    def __post_init__(self) -> None:
+        for name in ("history_dim", "hidden_dim", "out_dim", "norm_eps"):
+            positive(name, getattr(self, name))
+        if not 0.0 <= self.scale_momentum < 1.0:
+            raise ValueError(f"scale_momentum={self.scale_momentum}: must lie in [0, 1)")
+
+    @classmethod
+    def for_profile(cls, profile: str) -> RNDOEConfig:
+        check_profile(profile)
+        return cls() if profile == "paper" else cls(hidden_dim=128, out_dim=32)

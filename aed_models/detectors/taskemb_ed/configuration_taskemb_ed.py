@@ -1,0 +1,30 @@
+"""Configuration of TaskEmbED, the single-frame baseline with a NaiveDC task embedding."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from aed_models.detectors.base import VisualDetectorConfig, check_profile, positive
+
+
+@dataclass
+class TaskEmbEDConfig(VisualDetectorConfig):
+    """TaskEmbED: visual head + MLP on [frame feature, task embedding (2 x feature_dim)].
+
+    Args:
+        hidden_dims: the classifier MLP's hidden sizes (paper profile: 256, 64, giving ~0.2M
+            parameters on top of the head: 11.5M in all, as the paper's 11.52M).
+    """
+
+    hidden_dims: tuple[int, ...] = (256, 64)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.hidden_dims = tuple(self.hidden_dims)
+        for i, h in enumerate(self.hidden_dims):
+            positive(f"hidden_dims[{i}]", h)
+
+    @classmethod
+    def for_profile(cls, profile: str) -> TaskEmbEDConfig:
+        check_profile(profile)
+        return cls(arch="resnet18") if profile == "paper" else cls(arch="small_cnn", hidden_dims=(128, 64))

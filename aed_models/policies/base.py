@@ -1,0 +1,253 @@
+"""The demonstration-conditioned (DC) policy shared by NaiveDC, DCT and SCAN.
+
+Paper, "Preliminaries": a visual head encodes every frame (rollout and demonstrations), a
+task-embedding network turns the demonstrations (and the rollout so far) into f_zeta, and an
+actor maps [f_h, f_zeta] to the action: a position delta (3) and a gripper command (1).
+
+Subclasses supply the task-embedding network through four hooks:
+
+- `encode_demos(demos) -> memory`: everything the task net needs from the demonstrations;
+- `sequence(f, mask, memory) -> (history, task)`: batched and causal over the rollout;
+- `init_state(memory)` and `step(f_t, memory, state) -> (history_t, task_t, state)`: the
+  same computation one frame at a time, with per-frame results cached in `state`.
+
+Actions are learned standardised (the expert's per-axis std is ~0.1: raw, the MSE sits at
+the variance and nothing is learned); `act` de-standardises, clips to [-1, 1] and turns the
+gripper logit into +1 (open) / -1 (closed).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from aed_models.data import to_frames
+from aed_models.nn.encoders import build_visual_head, encode_frames
+from aed_models.policies.configuration_base import PolicyConfig
+
+logger = logging.getLogger(__name__)
+
+ACTION_DIM = 4  # pd_ee_delta_pos: dx, dy, dz in [-1, 1], gripper +1 open / -1 closed
+
+
+@dataclass
+class PolicyFeatures:
+    """What detectors read: f_h (B, T, history_dim) and f_zeta (B, T, task_dim) per rollout step."""
+
+    history: torch.Tensor
+    task: torch.Tensor
+
+
+def mlp(sizes: list[int]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for a, b in zip(sizes[:-1], sizes[1:], strict=True):
+        layers += [nn.Linear(a, b), nn.ReLU()]
+    return nn.Sequential(*layers)
+
+
+class Actor(nn.Module):
+    """MLP [in, 256, 64] with two parallel heads: position (3) and gripper control (1)."""
+
+    def __init__(self, in_dim: int, hidden: tuple[int, ...]):
+        super().__init__()
+        self.body = mlp([in_dim, *hidden])
+        self.pos = nn.Linear(hidden[-1], 3)
+        self.grip = nn.Linear(hidden[-1], 1)
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        h = self.body(x)
+        return self.pos(h), self.grip(h)
+
+
+def check_sequences(batch: Any, what: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """(frames (B, L, 4, H, W), mask (B, L)) of a padded group, mask all-True when absent."""
+    if not isinstance(batch, dict) or "frames" not in batch:
+        raise ValueError(f"{what}: expected a dict with 'frames' (B, L, 4, H, W) and 'mask' (B, L)")
+    frames = batch["frames"]
+    if frames.dim() != 5 or frames.shape[2] != 4:
+        raise ValueError(f"{what}['frames'] of shape {tuple(frames.shape)}: expected (B, L, 4, H, W)")
+    mask = batch.get("mask")
+    if mask is None:
+        mask = torch.ones(frames.shape[:2], dtype=torch.bool, device=frames.device)
+    if mask.shape != frames.shape[:2]:
+        raise ValueError(f"{what}['mask'] of shape {tuple(mask.shape)}: expected {tuple(frames.shape[:2])}")
+    mask = mask.bool()
+    if not mask[:, 0].all():
+        raise ValueError(f"{what}: every sequence needs at least one frame (mask[:, 0] all True)")
+    return frames, mask
+
+
+class DCPolicy(nn.Module):
+    """Visual head + task-embedding network + actor. See the module docstring for the hooks.
+
+    History feature f_h[t]: NaiveDC and DCT, the visual feature of frame t; SCAN, its LSTM
+    output at t (what its actor reads). Task embedding f_zeta[t]: NaiveDC, constant over t.
+    Online features are inference-mode tensors (read them, do not backpropagate through them).
+    """
+
+    name: ClassVar[str] = ""
+    camera = "front"
+
+    def __init__(self, config: PolicyConfig, history_dim: int, task_dim: int):
+        super().__init__()
+        self.config = config
+        self.history_dim, self.task_dim = history_dim, task_dim
+        self.visual = build_visual_head(config.visual)
+        self.actor = Actor(history_dim + task_dim, config.actor_hidden)
+        self.inverse_dynamics = None
+        if config.inverse_dynamics:
+            d = config.visual.out_dim
+            self.inverse_dynamics = nn.Sequential(mlp([2 * d, *config.actor_hidden]), nn.Linear(config.actor_hidden[-1], ACTION_DIM))
+        self.register_buffer("action_mean", torch.zeros(ACTION_DIM))
+        self.register_buffer("action_std", torch.ones(ACTION_DIM))
+        self._online: dict[str, Any] | None = None
+
+    # -- task-embedding hooks ------------------------------------------------------------
+    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor) -> Any:
+        raise NotImplementedError
+
+    def sequence(self, f: torch.Tensor, mask: torch.Tensor, memory: Any) -> tuple[torch.Tensor, torch.Tensor]:
+        raise NotImplementedError
+
+    def init_state(self, memory: Any) -> Any:
+        raise NotImplementedError
+
+    def step(self, f_t: torch.Tensor, memory: Any, state: Any) -> tuple[torch.Tensor, torch.Tensor, Any]:
+        raise NotImplementedError
+
+    # -- batched ---------------------------------------------------------------------------
+    def set_action_stats(self, actions: torch.Tensor) -> None:
+        """Per-axis mean and std of the training actions (M, 4); std floored at 1e-3."""
+        actions = torch.as_tensor(actions, dtype=torch.float32).reshape(-1, ACTION_DIM)
+        if len(actions) < 2:
+            raise ValueError(f"set_action_stats: {len(actions)} actions, need at least 2")
+        self.action_mean.copy_(actions.mean(0))
+        self.action_std.copy_(actions.std(0).clamp_min(1e-3))
+
+    def _features(self, frames: torch.Tensor, mask: torch.Tensor, demos: dict) -> tuple[torch.Tensor, PolicyFeatures]:
+        demo_frames, demo_mask = check_sequences(demos, "demos")
+        memory = self.encode_demos(demo_frames, demo_mask)
+        f = encode_frames(self.visual, frames, mask)
+        history, task = self.sequence(f, mask, memory)
+        return f, PolicyFeatures(history, task)
+
+    def features(self, frames: torch.Tensor | None = None, mask: torch.Tensor | None = None, demos: dict | None = None):
+        """Batched: `features(frames (B, T, 4, H, W), mask (B, T), demos)` -> PolicyFeatures.
+
+        Online (no arguments): `(f_h (history_dim,), f_zeta (task_dim,))` of the latest `act`.
+        """
+        if frames is None:
+            if self._online is None or self._online.get("history") is None:
+                raise RuntimeError("features(): no step yet; call reset(demos) and act(obs) first")
+            return self._online["history"], self._online["task"]
+        if demos is None:
+            raise ValueError("features(frames, mask, demos): demos missing")
+        frames, mask = check_sequences({"frames": frames, "mask": mask}, "rollouts")
+        return self._features(frames, mask, demos)[1]
+
+    def forward(self, rollouts: dict, demos: dict) -> dict[str, torch.Tensor]:
+        """rollouts (B, T, ...) conditioned on the N demos they share -> standardised pos (B, T, 3),
+        gripper logit (B, T, 1), history / task features and the visual features."""
+        frames, mask = check_sequences(rollouts, "rollouts")
+        f, feats = self._features(frames, mask, demos)
+        pos, grip = self.actor(torch.cat([feats.history, feats.task], dim=-1))
+        return {"pos": pos, "grip": grip, "history": feats.history, "task": feats.task, "visual": f}
+
+    def loss(self, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
+        """Behaviour cloning on one `EnvironmentIterations` item (its rollouts and demos).
+
+        `pos_mse` is on standardised targets, so it is relative to the actions' variance:
+        1.0 = predicting the mean. Frames without an action (each sequence's last, padding)
+        are left out.
+        """
+        rollouts = batch["rollouts"]
+        out = self(rollouts, batch["demos"])
+        actions = rollouts["actions"].to(out["pos"].device)
+        _, mask = check_sequences(rollouts, "rollouts")
+        lengths = mask.sum(1)
+        acted = torch.arange(mask.shape[1], device=mask.device)[None] < (lengths - 1)[:, None]
+        if not acted.any():
+            raise ValueError("loss: no frame with an action (every rollout has a single frame)")
+        pos_loss, grip_loss, grip_acc = self._action_loss(out["pos"][acted], out["grip"][acted], actions[acted])
+        total = pos_loss + grip_loss
+        parts = {"pos_mse": pos_loss.item(), "grip_loss": grip_loss.item(), "grip_acc": grip_acc}
+        if self.inverse_dynamics is not None:
+            f = out["visual"]
+            pair = torch.cat([f[:, :-1], f[:, 1:]], dim=-1)[acted[:, :-1] & mask[:, 1:]]
+            pred = self.inverse_dynamics(pair)
+            id_pos, id_grip, _ = self._action_loss(pred[:, :3], pred[:, 3:], actions[:, :-1][acted[:, :-1] & mask[:, 1:]])
+            id_loss = id_pos + id_grip
+            total = total + self.config.inverse_dynamics_weight * id_loss
+            parts["inverse_dynamics"] = id_loss.item()
+        parts["loss"] = total.item()
+        return total, parts
+
+    def _action_loss(self, pos: torch.Tensor, grip: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, float]:
+        target = (actions - self.action_mean) / self.action_std
+        pos_loss = F.mse_loss(pos, target[:, :3])
+        opened = (actions[:, 3:] > 0).float()
+        if self.config.grip_loss == "bce":
+            grip_loss = F.binary_cross_entropy_with_logits(grip, opened)
+        else:
+            grip_loss = F.mse_loss(grip, target[:, 3:])
+        grip_acc = ((self._grip_open(grip) > 0).float() == opened).float().mean().item()
+        return pos_loss, grip_loss, grip_acc
+
+    def _grip_open(self, grip: torch.Tensor) -> torch.Tensor:
+        """Gripper output -> >0 where open: a logit (bce), or the de-standardised value (mse)."""
+        if self.config.grip_loss == "bce":
+            return grip
+        return grip * self.action_std[3] + self.action_mean[3]
+
+    def to_action(self, pos: torch.Tensor, grip: torch.Tensor) -> torch.Tensor:
+        """Standardised pos (..., 3) and gripper output (..., 1) -> env actions (..., 4) in [-1, 1]."""
+        pos = (pos * self.action_std[:3] + self.action_mean[:3]).clamp(-1.0, 1.0)
+        gripper = torch.where(self._grip_open(grip) > 0, 1.0, -1.0)
+        return torch.cat([pos, gripper], dim=-1)
+
+    # -- online ----------------------------------------------------------------------------
+    def reset(self, demos: dict) -> None:
+        """Encode the demonstrations once for a new rollout; switches to eval mode."""
+        self.eval()
+        frames, mask = check_sequences(demos, "demos")
+        device = self.action_mean.device
+        with torch.inference_mode():
+            memory = self.encode_demos(frames.to(device), mask.to(device))
+            self._online = {"memory": memory, "state": self.init_state(memory), "t": 0, "history": None, "task": None}
+
+    def act(self, obs: Any) -> np.ndarray:
+        """One step: a ManiSkill rgbd observation dict or a (4, H, W) frame -> action (4,) float32."""
+        if self._online is None:
+            raise RuntimeError("act(): call reset(demos) first")
+        frame = self.observation_frame(obs).to(self.action_mean.device)
+        with torch.inference_mode():
+            f_t = self.visual(frame[None])
+            history, task, self._online["state"] = self.step(f_t, self._online["memory"], self._online["state"])
+            pos, grip = self.actor(torch.cat([history, task], dim=-1))
+            action = self.to_action(pos, grip)[0]
+        self._online.update(history=history[0], task=task[0], t=self._online["t"] + 1)
+        return action.cpu().numpy().astype(np.float32)
+
+    def observation_frame(self, obs: Any) -> torch.Tensor:
+        if isinstance(obs, torch.Tensor) and obs.dim() == 3:
+            if obs.shape[0] != 4:
+                raise ValueError(f"frame of shape {tuple(obs.shape)}: expected (4, H, W)")
+            return obs.float()
+        try:
+            camera = obs["sensor_data"][self.camera]
+            rgb, depth = camera["rgb"], camera["depth"]
+        except (KeyError, TypeError) as e:
+            raise ValueError(f"observation: expected a (4, H, W) frame or an rgbd dict with sensor_data/{self.camera}/rgb, depth") from e
+        rgb, depth = (x.cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x) for x in (rgb, depth))
+        if rgb.ndim == 3:
+            rgb, depth = rgb[None], depth[None]
+        return to_frames(rgb[:1], depth[:1])[0]
+
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())

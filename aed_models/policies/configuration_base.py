@@ -1,0 +1,65 @@
+"""What every demonstration-conditioned policy's config holds (torch-free, so CLIs load fast)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Literal
+
+from aed_models.nn.config import VisualHeadConfig
+
+
+@dataclass
+class PolicyConfig:
+    """Shared parts: the visual head and the actor (paper, appendix table "General components").
+
+    Args:
+        visual: the per-frame encoder, shared by the rollout and the demonstrations.
+        actor_hidden: hidden sizes of the actor MLP (paper: 256, 64); its input is the
+            history feature and the task embedding concatenated.
+        inverse_dynamics: add a head predicting the action between consecutive frames
+            (the paper's optional module; an auxiliary loss only).
+        inverse_dynamics_weight: weight of that loss.
+        grip_loss: `bce` on open (+1) / closed (-1), or `mse` on the standardised value.
+    """
+
+    name: ClassVar[str] = ""
+
+    visual: VisualHeadConfig = field(default_factory=VisualHeadConfig)
+    actor_hidden: tuple[int, ...] = (256, 64)
+    inverse_dynamics: bool = False
+    inverse_dynamics_weight: float = 1.0
+    grip_loss: Literal["bce", "mse"] = "bce"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.visual, dict):
+            self.visual = VisualHeadConfig(**self.visual)
+        if not isinstance(self.visual, VisualHeadConfig):
+            raise ValueError(f"visual={self.visual!r}: must be a VisualHeadConfig")
+        self.actor_hidden = tuple(int(h) for h in self.actor_hidden)
+        if not self.actor_hidden or min(self.actor_hidden) < 1:
+            raise ValueError(f"actor_hidden={self.actor_hidden}: needs at least one size, all >= 1")
+        if self.inverse_dynamics_weight < 0:
+            raise ValueError(f"inverse_dynamics_weight={self.inverse_dynamics_weight}: must be >= 0")
+        if self.grip_loss not in ("bce", "mse"):
+            raise ValueError(f"grip_loss={self.grip_loss!r}: bce or mse")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict (lists, not tuples) for checkpoints and logs."""
+        return _plain(dataclasses.asdict(self))
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> PolicyConfig:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"{cls.__name__}: unknown fields {unknown}; known {sorted(known)}")
+        return cls(**data)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value

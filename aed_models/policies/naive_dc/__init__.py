@@ -1,0 +1,1 @@
+"""NaiveDC policy."""

@@ -1,0 +1,1 @@
+"""Training loops, one readable file per learner family (CleanRL style)."""

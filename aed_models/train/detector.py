@@ -1,0 +1,275 @@
+"""Train an error detector on base-split rollouts (paper, appendix "Error Detector Details").
+
+Read top to bottom: config -> data (frames, or cached policy features) -> model -> (resume)
+-> epochs -> final checkpoint.
+
+- RMSprop, lr 1e-4, L2 weight decay 1e-2 (as the policies).
+- An epoch walks every base environment once (shuffled); an iteration draws from one
+  environment 5 demonstrations + 10 agent successes + 10 agent failures
+  (`COMPOSITIONS["detector"]`), or 5 + 20 successes for the detectors trained on successes
+  only (SVDDED, RND-OE: `COMPOSITIONS["svdd"]`). Agent rollouts are augmented (keep / drop /
+  swap / copy) unless `augment=False`.
+- Policy-dependent detectors (PrObe, RND-OE) never see images: the frozen policy's features of
+  every base rollout are computed once into `runs/<task>/features/<policy sha256[:16]>/`
+  (`aed_models.train.feature_cache`) and the iterations read them from there.
+- After every epoch `<out>/last.pt` holds model, optimizer, RNG state, epoch and log (a killed
+  run resumes where it stopped); `<out>/train_log.json` the per-epoch losses. The result is
+  `<out>/detector.pt`, whose `extra` records the task, the profile and, for policy-dependent
+  detectors, the policy's name and checkpoint sha256.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import torch
+from torch.utils.data import DataLoader
+from tqdm import tqdm
+
+from aed_models.augment import RolloutAugment
+from aed_models.checkpoint import file_sha256, load_checkpoint, save_checkpoint
+from aed_models.data import EnvironmentIterations, EnvironmentSampler, load_episodes
+from aed_models.detectors import DETECTORS, FAMILY, detector_config, make_detector
+from aed_models.train.feature_cache import FeatureCache, FeatureIterations
+from aed_models.train.policy import PAPER_EPOCHS, seed_everything, select_environments
+
+logger = logging.getLogger(__name__)
+
+MINI = {"epochs": 20, "num_envs": 10}
+# Single-frame detectors lose nothing by seeing fewer frames per episode; temporal ones see
+# every frame, so that they meet online the frame rate they were trained at.
+MINI_MAX_FRAMES = {"svdd_ed": 32, "taskemb_ed": 32}
+
+
+@dataclass
+class TrainDetectorConfig:
+    """Training of one error detector on one task's base-split collection.
+
+    Args:
+        task: task name (e.g. PressButton).
+        detector: svdd_ed, taskemb_ed, lstm_ed, dct_ed, probe or rnd_oe.
+        policy: the frozen policy (probe, rnd_oe only): a policy name, read from
+            runs/<task>/policies/<name>/policy.pt, or a checkpoint path.
+        profile: mini (CPU-sized) or paper (the paper's sizes).
+        data: collection folder (default runs/<task>/data/base).
+        out: output folder (default runs/<task>/detectors/<detector>[-<policy>]).
+        epochs: epochs (default: mini 20; paper the task's policy epoch count).
+        num_envs: use the first N base environments (default: mini 10; paper all).
+        max_frames: frames per episode per iteration, evenly spread; 0 = all (default: mini
+            32 for the single-frame svdd_ed / taskemb_ed, else all).
+        augment: rollout augmentation (paper: on; off for the ablation).
+        lr: RMSprop learning rate.
+        weight_decay: L2 weight.
+        seed: seeds the model, the draws and the augmentation.
+        resume: continue from <out>/last.pt when it exists.
+        progress: show progress bars.
+        device: torch device of the detector (and of the policy while features are cached).
+        workers: DataLoader worker processes (0 = read in the main process).
+    """
+
+    task: str = "PressButton"
+    detector: str = "probe"
+    policy: str | None = None
+    profile: Literal["mini", "paper"] = "mini"
+    data: Path | None = None
+    out: Path | None = None
+    epochs: int | None = None
+    num_envs: int | None = None
+    max_frames: int | None = None
+    augment: bool = True
+    lr: float = 1e-4
+    weight_decay: float = 1e-2
+    seed: int = 0
+    resume: bool = True
+    progress: bool = True
+    device: str = "cpu"
+    workers: int = 0
+
+    def __post_init__(self) -> None:
+        if self.detector not in DETECTORS:
+            raise ValueError(f"detector={self.detector!r}: known {sorted(DETECTORS)}")
+        if self.profile not in ("mini", "paper"):
+            raise ValueError(f"profile={self.profile!r}: mini or paper")
+        needs_policy = DETECTORS[self.detector].model_type().requires_policy
+        if needs_policy and not self.policy:
+            raise ValueError(f"policy=None: detector {self.detector!r} reads a policy's features; name the policy")
+        if self.epochs is None:
+            if self.profile == "paper" and self.task not in PAPER_EPOCHS:
+                raise ValueError(f"task={self.task!r}: no paper epoch count (known {sorted(PAPER_EPOCHS)}); pass epochs")
+            self.epochs = PAPER_EPOCHS[self.task] if self.profile == "paper" else MINI["epochs"]
+        if self.num_envs is None and self.profile == "mini":
+            self.num_envs = MINI["num_envs"]
+        if self.max_frames is None:
+            self.max_frames = MINI_MAX_FRAMES.get(self.detector, 0) if self.profile == "mini" else 0
+        for name in ("epochs", "num_envs"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"{name}={value}: must be >= 1")
+        if self.max_frames < 0 or self.max_frames == 1:
+            raise ValueError(f"max_frames={self.max_frames}: 0 (all) or >= 2")
+        if self.lr <= 0 or self.weight_decay < 0:
+            raise ValueError(f"lr={self.lr}, weight_decay={self.weight_decay}: lr > 0, weight_decay >= 0")
+        runs = Path("runs") / self.task
+        self.data = Path(self.data) if self.data is not None else runs / "data" / "base"
+        if self.out is None:
+            label = Path(self.policy).parent.name if Path(self.policy).suffix else Path(self.policy).name
+            suffix = f"-{label}" if needs_policy else ""
+            self.out = runs / "detectors" / f"{self.detector}{suffix}"
+        self.out = Path(self.out)
+
+    def policy_path(self) -> Path:
+        """The policy checkpoint: `policy` itself when it is a file, else the named policy's."""
+        assert self.policy is not None
+        path = Path(self.policy)
+        if path.is_file():
+            return path
+        if path.is_dir():
+            return path / "policy.pt"
+        return Path("runs") / self.task / "policies" / self.policy / "policy.pt"
+
+
+def load_frozen_policy(cfg: TrainDetectorConfig) -> tuple[Any, str, str]:
+    """(policy in eval mode with gradients off, its registry name, its checkpoint sha256)."""
+    from aed_models.policies import load_policy
+
+    path = cfg.policy_path()
+    if not path.is_file():
+        raise FileNotFoundError(f"policy={cfg.policy!r}: no checkpoint at {path} (train the policy first)")
+    policy = load_policy(path)  # checks the family: a detector file here is refused
+    sha = file_sha256(path)
+    policy.requires_grad_(False)
+    return policy, policy.name, sha
+
+
+def build_dataset(cfg: TrainDetectorConfig, detector_name: str, episodes: list, policy: Any, policy_sha: str) -> Any:
+    """Frame iterations for the visual baselines, cached-feature iterations for the others."""
+    model_type = DETECTORS[detector_name].model_type()
+    composition = "svdd" if model_type.trains_on == "successes" else "detector"
+    augment = RolloutAugment(enabled=cfg.augment)
+    max_frames = cfg.max_frames or None
+    if not model_type.requires_policy:
+        return EnvironmentIterations(episodes, composition, augment=augment, max_frames=max_frames, seed=cfg.seed)
+    cache = FeatureCache(_features_root(cfg), policy_sha)
+    written = cache.build(episodes, policy, seed=cfg.seed, progress=cfg.progress)
+    logger.info("policy features: %s (%d shards computed)", cache.dir, written)
+    return FeatureIterations(episodes, cache, composition, augment=augment, max_frames=max_frames, seed=cfg.seed)
+
+
+def _features_root(cfg: TrainDetectorConfig) -> Path:
+    """runs/<task>/features beside the collection's runs/<task>/data/base when it lies there."""
+    data = Path(cfg.data)
+    if data.parent.name == "data":
+        return data.parent.parent / "features"
+    return Path(cfg.out) / "features"
+
+
+def to_device(value: Any, device: torch.device) -> Any:
+    """Tensors inside nested dicts / tuples / lists moved to `device`; anything else as is."""
+    if isinstance(value, torch.Tensor):
+        return value.to(device, non_blocking=True)
+    if isinstance(value, dict):
+        return {k: to_device(v, device) for k, v in value.items()}
+    if isinstance(value, (tuple, list)):
+        return type(value)(to_device(v, device) for v in value)
+    return value
+
+
+def prepare(batch: dict[str, Any], model_type: type, device: torch.device) -> tuple[dict[str, Any], Any]:
+    """The detector's (batch, policy_features) from a dataset item, on `device`."""
+    if model_type.requires_policy:
+        return to_device({"rollouts": batch["rollouts"]}, device), to_device(batch["features"], device)
+    return to_device({"demos": batch["demos"], "rollouts": batch["rollouts"]}, device), None
+
+
+def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
+    """Train, checkpointing every epoch; returns the final checkpoint `<out>/detector.pt`.
+
+    `detector_cfg` replaces the profile's detector config (tests use tiny ones); a
+    policy-dependent detector's feature sizes are always taken from the policy.
+    """
+    out: Path = cfg.out
+    out.mkdir(parents=True, exist_ok=True)
+    last_path, final_path, log_path = out / "last.pt", out / "detector.pt", out / "train_log.json"
+    seed_everything(cfg.seed)
+    device = torch.device(cfg.device)
+    model_type = DETECTORS[cfg.detector].model_type()
+
+    # the frozen policy (policy-dependent detectors only)
+    policy, policy_name, policy_sha = None, None, None
+    if model_type.requires_policy:
+        policy, policy_name, policy_sha = load_frozen_policy(cfg)
+        policy.to(device)
+
+    # data
+    episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
+    dataset = build_dataset(cfg, cfg.detector, episodes, policy, policy_sha or "")
+    logger.info("%s on %s: %d environments, %d episodes", cfg.detector, cfg.data, len(dataset), len(episodes))
+
+    # model and optimiser
+    detector_cfg = detector_cfg or detector_config(cfg.detector, cfg.profile)
+    overrides = {"history_dim": policy.history_dim} if policy is not None else {}
+    if policy is not None and cfg.detector == "probe":
+        overrides["task_dim"] = policy.task_dim
+    detector = make_detector(cfg.detector, detector_cfg, **overrides).to(device)
+    del policy  # features are cached: the policy is not needed any more
+    optimizer = torch.optim.RMSprop([p for p in detector.parameters() if p.requires_grad], lr=cfg.lr, weight_decay=cfg.weight_decay)
+    train_config = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()}
+    provenance = {"task": cfg.task, "profile": cfg.profile, "policy_name": policy_name, "policy_sha256": policy_sha}
+
+    # resume
+    start_epoch, log = 0, []
+    if cfg.resume and last_path.exists():
+        ckpt = load_checkpoint(last_path, family=FAMILY, name=cfg.detector)
+        if ckpt.extra.get("policy_sha256") != policy_sha:
+            raise ValueError(f"{last_path}: trained on policy {ckpt.extra.get('policy_sha256')}, not {policy_sha}; "
+                             "use another out folder or resume=False")  # fmt: skip
+        detector.load_state_dict(ckpt.state_dict)
+        optimizer.load_state_dict(ckpt.extra["optimizer"])
+        torch.set_rng_state(ckpt.extra["torch_rng"])
+        start_epoch, log = ckpt.extra["epoch"], ckpt.extra["log"]
+        logger.info("resumed from %s after epoch %d", last_path, start_epoch)
+        if start_epoch >= cfg.epochs and final_path.exists():
+            logger.info("%s: already trained for %d epochs", final_path, start_epoch)
+            return final_path  # untouched: its sha256 is what rollouts and detectors are tied to
+
+    for epoch in range(start_epoch, cfg.epochs):
+        detector.train()
+        loader = DataLoader(dataset, sampler=EnvironmentSampler(len(dataset), 1, cfg.seed, start_epoch=epoch),
+                            batch_size=None, num_workers=cfg.workers)  # fmt: skip
+        sums: dict[str, float] = defaultdict(float)
+        frames, start = 0, time.perf_counter()
+        bar = tqdm(loader, desc=f"{cfg.detector} epoch {epoch + 1}/{cfg.epochs}", disable=not cfg.progress, leave=False)
+        for item in bar:
+            batch, features = prepare(item, model_type, device)
+            loss, parts = detector.loss(batch, features)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            sums["loss"] += float(loss.detach())
+            for k, v in parts.items():
+                sums[k] += v
+            frames += int(batch["rollouts"]["mask"].sum())
+            bar.set_postfix(loss=f"{float(loss.detach()):.3f}")
+        seconds = time.perf_counter() - start
+        entry = {"epoch": epoch + 1, **{k: v / len(dataset) for k, v in sums.items()},
+                 "seconds": round(seconds, 2), "frames_per_s": round(frames / seconds, 1)}  # fmt: skip
+        log.append(entry)
+        logger.info("epoch %d/%d: %s", epoch + 1, cfg.epochs, entry)
+        save_checkpoint(last_path, family=FAMILY, name=cfg.detector, config=detector.config_dict(),
+                        state_dict=detector.state_dict(),
+                        extra={**provenance, "epoch": epoch + 1, "optimizer": optimizer.state_dict(),
+                               "torch_rng": torch.get_rng_state(), "log": log, "train_config": train_config})  # fmt: skip
+        log_path.write_text(json.dumps(log, indent=1))
+
+    sha = save_checkpoint(final_path, family=FAMILY, name=cfg.detector, config=detector.config_dict(),
+                          state_dict=detector.state_dict(),
+                          extra={**provenance, "epoch": cfg.epochs, "log": log, "train_config": train_config})  # fmt: skip
+    logger.info("wrote %s (sha256 %s)", final_path, sha[:12])
+    return final_path

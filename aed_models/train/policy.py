@@ -1,0 +1,251 @@
+"""Train a demonstration-conditioned policy by behaviour cloning (paper, appendix "Training details").
+
+Read top to bottom: config -> data -> model -> (resume) -> epochs -> final checkpoint.
+
+- RMSprop, lr 1e-4, L2 weight decay 1e-2.
+- An epoch walks every base environment once (shuffled); an iteration draws from one
+  environment 5 demonstrations + 10 agent successes (`COMPOSITIONS["policy"]`).
+- Actions are standardised with statistics of the training rollouts (see `DCPolicy`).
+- After every epoch, `<out>/last.pt` holds model, optimizer, RNG state, epoch and the log,
+  so an interrupted run resumes where it stopped and ends with the same weights;
+  `<out>/train_log.json` holds the per-epoch losses. The result is `<out>/policy.pt`.
+
+Profiles: `paper` keeps the paper's sizes (ResNet18 head, all frames, every base
+environment, the paper's epochs per task). `mini` is sized for a 2-core CPU: the small CNN
+head (no dropout), 10 environments, a random shift of +-4 px on frames, NaiveDC sees 32 evenly
+spread frames per episode, lr 3e-4 and no weight decay. Measured on real PickPlace frames:
+a from-scratch small CNN starts with nearly constant features and the loss sits at the
+actions' variance for ~70 iterations before it falls; RMSprop normalises the step, so an L2
+term of 1e-2 outweighs those tiny early gradients, and lr 1e-3 collapsed the features. DCT and SCAN model time step by step, so they see every frame: trained on
+subsampled episodes they would meet a different frame rate online.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import random
+import time
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import h5py
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch.utils.data import DataLoader
+from tqdm import tqdm
+
+from aed_models.checkpoint import load_checkpoint, save_checkpoint
+from aed_models.data import EnvironmentIterations, EnvironmentSampler, load_episodes
+from aed_models.policies import FAMILY, POLICIES, PolicyConfig, make_policy, policy_config
+
+logger = logging.getLogger(__name__)
+
+# Paper, appendix table "FSI task configurations": epochs per task.
+PAPER_EPOCHS = {"CloseDrawer": 160, "PressButton": 40, "PickPlace": 50, "MoveGlassCup": 50,
+                "OrganizeTable": 50, "BackToBox": 50, "FactoryPacking": 80}  # fmt: skip
+MINI = {"epochs": 20, "num_envs": 10, "shift": 4, "lr": 3e-4, "weight_decay": 0.0}
+PAPER = {"lr": 1e-4, "weight_decay": 1e-2}
+MINI_MAX_FRAMES = {"naive_dc": 32}  # others: every frame (see the module docstring)
+
+
+@dataclass
+class TrainPolicyConfig:
+    """Behaviour cloning of one policy on one task's base-split collection.
+
+    Args:
+        task: task name (e.g. PressButton).
+        policy: naive_dc, dct or scan.
+        profile: mini (CPU-sized) or paper (the paper's sizes).
+        data: collection folder (default runs/<task>/data/base).
+        out: output folder (default runs/<task>/policies/<policy>).
+        epochs: epochs (default: mini 20; paper the paper's count for the task).
+        num_envs: use the first N base environments (default: mini 10; paper all).
+        max_frames: frames per episode per iteration, evenly spread; 0 = all (default:
+            mini 32 for naive_dc, else all).
+        shift: random-shift augmentation in pixels, per sequence (default: mini 4; paper 0).
+        lr: RMSprop learning rate (default: paper 1e-4; mini 3e-4).
+        weight_decay: L2 weight (default: paper 1e-2; mini 0: see the module docstring).
+        seed: seeds the model, the draws and the augmentation.
+        resume: continue from <out>/last.pt when it exists.
+        progress: show a progress bar.
+        device: torch device.
+        workers: DataLoader worker processes (0 = read in the main process).
+    """
+
+    task: str = "PressButton"
+    policy: str = "naive_dc"
+    profile: Literal["mini", "paper"] = "mini"
+    data: Path | None = None
+    out: Path | None = None
+    epochs: int | None = None
+    num_envs: int | None = None
+    max_frames: int | None = None
+    shift: int | None = None
+    lr: float | None = None
+    weight_decay: float | None = None
+    seed: int = 0
+    resume: bool = True
+    progress: bool = True
+    device: str = "cpu"
+    workers: int = 0
+
+    def __post_init__(self) -> None:
+        if self.policy not in POLICIES:
+            raise ValueError(f"policy={self.policy!r}: known {', '.join(POLICIES)}")
+        if self.profile not in ("mini", "paper"):
+            raise ValueError(f"profile={self.profile!r}: mini or paper")
+        if self.epochs is None:
+            if self.profile == "paper" and self.task not in PAPER_EPOCHS:
+                raise ValueError(f"task={self.task!r}: no paper epoch count (known {sorted(PAPER_EPOCHS)}); pass epochs")
+            self.epochs = PAPER_EPOCHS[self.task] if self.profile == "paper" else MINI["epochs"]
+        if self.num_envs is None and self.profile == "mini":
+            self.num_envs = MINI["num_envs"]
+        if self.max_frames is None:
+            self.max_frames = MINI_MAX_FRAMES.get(self.policy, 0) if self.profile == "mini" else 0
+        if self.shift is None:
+            self.shift = MINI["shift"] if self.profile == "mini" else 0
+        for name in ("lr", "weight_decay"):
+            if getattr(self, name) is None:
+                setattr(self, name, (MINI if self.profile == "mini" else PAPER)[name])
+        for name in ("epochs", "num_envs"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"{name}={value}: must be >= 1")
+        if self.max_frames < 0 or self.max_frames == 1:
+            raise ValueError(f"max_frames={self.max_frames}: 0 (all) or >= 2")
+        if self.shift < 0:
+            raise ValueError(f"shift={self.shift}: must be >= 0")
+        if self.lr <= 0 or self.weight_decay < 0:
+            raise ValueError(f"lr={self.lr}, weight_decay={self.weight_decay}: lr > 0, weight_decay >= 0")
+        self.data = Path(self.data) if self.data is not None else Path("runs") / self.task / "data" / "base"
+        self.out = Path(self.out) if self.out is not None else Path("runs") / self.task / "policies" / self.policy
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def select_environments(episodes: list, num_envs: int | None) -> list:
+    """The episodes of the first `num_envs` environments (by index)."""
+    if num_envs is None:
+        return episodes
+    keep = set(sorted({e.env_index for e in episodes})[:num_envs])
+    return [e for e in episodes if e.env_index in keep]
+
+
+def rollout_actions(episodes: list) -> torch.Tensor:
+    """Every action of the agent successes (what the policy is trained to output): (M, 4)."""
+    by_file: dict[Path, list[str]] = defaultdict(list)
+    for ref in episodes:
+        if ref.role == "agent_success":
+            by_file[ref.path].append(ref.traj)
+    actions = []
+    for path, trajs in by_file.items():
+        with h5py.File(path, "r") as h5:
+            actions += [h5[traj]["actions"][()] for traj in trajs]
+    if not actions:
+        raise ValueError("no agent_success episodes: nothing to imitate")
+    return torch.from_numpy(np.concatenate(actions).astype(np.float32))
+
+
+def random_shift(frames: torch.Tensor, shift: int, generator: torch.Generator) -> torch.Tensor:
+    """Shift each sequence (B, L, C, H, W) by up to +-`shift` px, edges replicated (DrQ-style)."""
+    if shift == 0:
+        return frames
+    b, length, c, h, w = frames.shape
+    padded = F.pad(frames.flatten(0, 1), (shift,) * 4, mode="replicate").view(b, length, c, h + 2 * shift, w + 2 * shift)
+    offsets = torch.randint(0, 2 * shift + 1, (b, 2), generator=generator).tolist()
+    return torch.stack([padded[i, :, :, dy : dy + h, dx : dx + w] for i, (dy, dx) in enumerate(offsets)])
+
+
+def prepare(batch: dict[str, Any], cfg: TrainPolicyConfig, device: torch.device) -> dict[str, Any]:
+    """Augment (seeded by seed, epoch, environment) and move an iteration's tensors to `device`."""
+    seed = int(np.random.default_rng([cfg.seed, batch["epoch"], batch["env_index"]]).integers(2**62))
+    generator = torch.Generator().manual_seed(seed)
+    out = {}
+    for key in ("demos", "rollouts"):
+        group = {k: v.to(device) for k, v in batch[key].items() if isinstance(v, torch.Tensor)}
+        group["frames"] = random_shift(group["frames"], cfg.shift, generator)
+        out[key] = group
+    return out
+
+
+def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None) -> Path:
+    """Train, checkpointing every epoch; returns the final checkpoint `<out>/policy.pt`.
+
+    `policy_cfg` replaces the profile's policy config (tests use tiny ones).
+    """
+    out: Path = cfg.out
+    out.mkdir(parents=True, exist_ok=True)
+    last_path, final_path, log_path = out / "last.pt", out / "policy.pt", out / "train_log.json"
+    device = torch.device(cfg.device)
+    seed_everything(cfg.seed)
+
+    # data
+    episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
+    dataset = EnvironmentIterations(episodes, "policy", max_frames=cfg.max_frames or None, seed=cfg.seed)
+    logger.info("%s on %s: %d environments, %d episodes", cfg.policy, cfg.data, len(dataset), len(episodes))
+
+    # model and optimiser
+    policy_cfg = policy_cfg or policy_config(cfg.policy, cfg.profile)
+    policy = make_policy(cfg.policy, policy_cfg).to(device)
+    optimizer = torch.optim.RMSprop(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    train_config = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()}
+
+    # resume, or start from the data's action statistics
+    start_epoch, log = 0, []
+    if cfg.resume and last_path.exists():
+        ckpt = load_checkpoint(last_path, family=FAMILY, name=cfg.policy)
+        if ckpt.config != policy.config.to_dict():
+            raise ValueError(f"{last_path}: trained with another {cfg.policy} config ({ckpt.config}); "
+                             "pass --no-resume or another --out")  # fmt: skip
+        policy.load_state_dict(ckpt.state_dict)
+        optimizer.load_state_dict(ckpt.extra["optimizer"])
+        torch.set_rng_state(ckpt.extra["torch_rng"])
+        start_epoch, log = ckpt.extra["epoch"], ckpt.extra["log"]
+        logger.info("resumed from %s after epoch %d", last_path, start_epoch)
+        if start_epoch >= cfg.epochs and final_path.exists():
+            logger.info("%s: already trained for %d epochs", final_path, start_epoch)
+            return final_path  # untouched: its sha256 is what rollouts and detectors are tied to
+    else:
+        policy.set_action_stats(rollout_actions(episodes))
+
+    for epoch in range(start_epoch, cfg.epochs):
+        policy.train()
+        loader = DataLoader(dataset, sampler=EnvironmentSampler(len(dataset), 1, cfg.seed, start_epoch=epoch),
+                            batch_size=None, num_workers=cfg.workers)  # fmt: skip
+        sums: dict[str, float] = defaultdict(float)
+        frames, start = 0, time.perf_counter()
+        bar = tqdm(loader, desc=f"{cfg.policy} epoch {epoch + 1}/{cfg.epochs}", disable=not cfg.progress, leave=False)
+        for batch in bar:
+            batch = prepare(batch, cfg, device)
+            loss, parts = policy.loss(batch)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            for k, v in parts.items():
+                sums[k] += v
+            frames += int(batch["rollouts"]["mask"].sum() + batch["demos"]["mask"].sum())
+            bar.set_postfix(loss=f"{parts['loss']:.3f}", pos_mse=f"{parts['pos_mse']:.3f}")
+        seconds = time.perf_counter() - start
+        entry = {"epoch": epoch + 1, **{k: v / len(dataset) for k, v in sums.items()},
+                 "seconds": round(seconds, 2), "frames_per_s": round(frames / seconds, 1)}  # fmt: skip
+        log.append(entry)
+        logger.info("epoch %d/%d: %s", epoch + 1, cfg.epochs, entry)
+        save_checkpoint(last_path, family=FAMILY, name=cfg.policy, config=policy.config.to_dict(),
+                        state_dict=policy.state_dict(),
+                        extra={"epoch": epoch + 1, "optimizer": optimizer.state_dict(), "torch_rng": torch.get_rng_state(),
+                               "log": log, "train_config": train_config})  # fmt: skip
+        log_path.write_text(json.dumps(log, indent=1))
+
+    sha = save_checkpoint(final_path, family=FAMILY, name=cfg.policy, config=policy.config.to_dict(),
+                          state_dict=policy.state_dict(),
+                          extra={"epoch": cfg.epochs, "log": log, "train_config": train_config})  # fmt: skip
+    logger.info("wrote %s (sha256 %s)", final_path, sha[:12])
+    return final_path

@@ -1,0 +1,1 @@
+"""Tests of aed_models: shared blocks, policies, detectors."""

@@ -1,0 +1,297 @@
+"""Every registered detector: builds, learns, scores offline == online, saves and loads.
+
+Tiny configs on 32 x 32 frames; policy features are plain tensors (no policy needed).
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from aed_models.checkpoint import CheckpointError
+from aed_models.detectors import (
+    DETECTORS,
+    PAPER_PARAMETERS,
+    detector_config,
+    load_detector,
+    make_detector,
+    save_detector,
+)
+
+H = W = 32
+DH, DZ = 12, 10
+TINY_VISUAL = {"arch": "small_cnn", "feature_dim": 16, "width": 4, "dropout": 0.1}
+TINY = {
+    "svdd_ed": TINY_VISUAL,
+    "taskemb_ed": {**TINY_VISUAL, "hidden_dims": (16,)},
+    "lstm_ed": {**TINY_VISUAL, "hidden_dim": 16, "head_dim": 8},
+    "dct_ed": {**TINY_VISUAL, "num_heads": 2, "ff_dim": 32, "encoder_layers": 1, "decoder_layers": 2},
+    "probe": {"history_dim": DH, "task_dim": DZ, "hidden_dim": 16, "embed_dim": 8, "triplets_per_rollout": 4},
+    "rnd_oe": {"history_dim": DH, "hidden_dim": 16, "out_dim": 8},
+}
+
+
+def tiny(name: str):
+    torch.manual_seed(0)
+    return make_detector(name, **TINY[name])
+
+
+def make_batch(seed: int = 0) -> tuple[dict, tuple[torch.Tensor, torch.Tensor]]:
+    """One environment: 2 demos, 2 successes + 2 failures of different lengths, and features.
+
+    Error frames are brighter and their history features shifted, so there is something to learn.
+    """
+    g = torch.Generator().manual_seed(seed)
+    lengths = torch.tensor([7, 5, 8, 6])
+    b, t = len(lengths), int(lengths.max())
+    mask = torch.arange(t)[None] < lengths[:, None]
+    is_failure = torch.tensor([False, False, True, True])
+    labels = torch.zeros(b, t)
+    labels[2, 3:8] = 1.0
+    labels[3, 2:6] = 1.0
+    frames = torch.rand(b, t, 4, H, W, generator=g) * 0.5 + labels[..., None, None, None] * 0.5
+    frames = frames * mask[..., None, None, None]
+    history = torch.randn(b, t, DH, generator=g) + 2.0 * labels[..., None]
+    task = torch.randn(1, 1, DZ, generator=g).expand(b, t, DZ).clone()
+    demo_lengths = torch.tensor([5, 4])
+    demo_mask = torch.arange(5)[None] < demo_lengths[:, None]
+    demos = {"frames": torch.rand(2, 5, 4, H, W, generator=g) * 0.5 * demo_mask[..., None, None, None],
+             "mask": demo_mask, "lengths": demo_lengths}  # fmt: skip
+    rollouts = {"frames": frames, "mask": mask, "lengths": lengths, "labels": labels, "is_failure": is_failure}
+    return {"demos": demos, "rollouts": rollouts}, (history, task)
+
+
+@pytest.mark.parametrize("name", sorted(DETECTORS))
+def test_training_lowers_the_loss(name):
+    detector = tiny(name)
+    batch, features = make_batch()
+    optimiser = torch.optim.Adam(detector.parameters(), lr=3e-3)
+
+    def eval_loss() -> float:
+        detector.eval()
+        with torch.no_grad():
+            torch.manual_seed(1)
+            return float(detector.loss(batch, features)[0])
+
+    before = eval_loss()
+    detector.train()
+    for _ in range(15):
+        loss, parts = detector.loss(batch, features)
+        assert torch.isfinite(loss) and parts
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    assert eval_loss() < before
+
+
+@pytest.mark.parametrize("name", sorted(DETECTORS))
+def test_offline_scores_equal_online_steps(name):
+    detector = tiny(name).eval()
+    batch, (history, task) = make_batch(seed=3)
+    rollouts, demos = batch["rollouts"], batch["demos"]
+    offline = detector.score(rollouts, demos, (history, task))
+    assert offline.shape == rollouts["mask"].shape
+    assert (offline[~rollouts["mask"]] == 0).all()
+    for i, length in enumerate(rollouts["lengths"].tolist()):
+        detector.reset(demos)
+        online = [
+            detector.step(rollouts["frames"][i, t], (history[i, t], task[i, t])) for t in range(length)
+        ]
+        torch.testing.assert_close(torch.tensor(online), offline[i, :length], atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("name", sorted(DETECTORS))
+def test_checkpoint_round_trip_and_refusal(name, tmp_path):
+    detector = tiny(name).eval()
+    batch, features = make_batch()
+    path = tmp_path / f"{name}.pt"
+    save_detector(path, detector, extra={"task": "PressButton"})
+    loaded = load_detector(path)
+    assert type(loaded) is type(detector) and loaded.config == detector.config
+    assert loaded.checkpoint_extra["task"] == "PressButton"
+    torch.testing.assert_close(loaded.score(batch["rollouts"], batch["demos"], features),
+                               detector.score(batch["rollouts"], batch["demos"], features))  # fmt: skip
+    other = "probe" if name != "probe" else "lstm_ed"
+    with pytest.raises(CheckpointError, match=f"{name}.*expected '{other}'"):
+        load_detector(path, name=other)
+
+
+def test_registry_errors_and_profiles():
+    with pytest.raises(ValueError, match="known.*probe"):
+        make_detector("nope")
+    with pytest.raises(ValueError, match="unknown config fields"):
+        make_detector("probe", not_a_field=1)
+    with pytest.raises(ValueError, match="hidden_dim=0"):
+        make_detector("probe", hidden_dim=0)
+    with pytest.raises(ValueError, match="profile"):
+        detector_config("probe", "huge")
+    assert set(PAPER_PARAMETERS) == set(DETECTORS) - {"rnd_oe"}
+    for name in DETECTORS:
+        assert detector_config(name, "mini") is not None and detector_config(name, "paper") is not None
+
+
+def test_interface_attributes():
+    kinds = {name: make_detector(name, **TINY[name]) for name in DETECTORS}
+    assert {n for n, d in kinds.items() if d.requires_policy} == {"probe", "rnd_oe"}
+    assert {n for n, d in kinds.items() if d.output == "distance"} == {"svdd_ed", "rnd_oe"}
+    assert {n for n, d in kinds.items() if d.trains_on == "successes"} == {"svdd_ed", "rnd_oe"}
+
+
+def test_step_before_reset_and_missing_inputs_fail_clearly():
+    probe = tiny("probe")
+    with pytest.raises(RuntimeError, match="reset"):
+        probe.step(None, (torch.zeros(DH), torch.zeros(DZ)))
+    probe.reset()
+    with pytest.raises(ValueError, match="policy's features"):
+        probe.step(None, None)
+    with pytest.raises(ValueError, match="history_dim"):
+        probe.step(None, (torch.zeros(DH + 1), torch.zeros(DZ)))
+    lstm = tiny("lstm_ed")
+    lstm.reset()
+    with pytest.raises(ValueError, match="reads frames"):
+        lstm.step(None)
+    with pytest.raises(ValueError, match="demonstrations"):
+        tiny("dct_ed").reset(None)
+
+
+def test_probe_switches():
+    batch, features = make_batch()
+    naive = make_detector("probe", **{**TINY["probe"], "use_pattern_extractor": False, "lambda_tem": 0.0})
+    _, parts = naive.loss(batch, features)
+    assert set(parts) == {"cls", "pat"}
+    only_tem = make_detector("probe", **{**TINY["probe"], "lambda_cls": 0.0, "lambda_pat": 0.0})
+    _, parts = only_tem.loss(batch, features)
+    assert set(parts) == {"tem"} and parts["tem"] > 0
+    with pytest.raises(ValueError, match="all 0"):
+        make_detector("probe", lambda_cls=0.0, lambda_pat=0.0, lambda_tem=0.0)
+
+
+def test_svdd_has_no_trainable_bias():
+    detector = tiny("svdd_ed")
+    biases = [n for n, p in detector.named_parameters() if n.endswith("bias")]
+    assert biases and all(not detector.get_parameter(n).requires_grad for n in biases)
+
+
+# -- training loop and feature cache on a tiny synthetic collection (no simulation) -----------
+
+
+@pytest.fixture(scope="module")
+def collection(tmp_path_factory):
+    """Two environments; per env 3 demos, 3 successes, 3 failures (tests/test_data.py's episodes)."""
+    from aed_tasks import trajectory
+    from tests.test_data import synthetic
+
+    root = tmp_path_factory.mktemp("collection")
+    info = {"env_id": "aed_tasks:AED-PickPlace-base", "env_kwargs": {}, "max_episode_steps": 250}
+    for env_index in (0, 1):
+        for role in ("demo", "agent_success", "agent_failure"):
+            writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
+            for k in range(3):
+                writer.add(*synthetic(role, env_index, seed=100 * env_index + k, steps=12 + 2 * k))
+            writer.commit(info, {"env_index": env_index, "group": role})
+    return root
+
+
+@pytest.fixture(scope="module")
+def tiny_policy(tmp_path_factory):
+    from aed_models.nn import VisualHeadConfig
+    from aed_models.policies import make_policy, policy_config, save_policy
+
+    torch.manual_seed(0)
+    config = policy_config("naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4))
+    path = tmp_path_factory.mktemp("policy") / "policy.pt"
+    save_policy(path, make_policy("naive_dc", config).eval())
+    return path
+
+
+def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
+    from aed_models.train.detector import TrainDetectorConfig, train_detector
+
+    config = make_detector("lstm_ed", **TINY["lstm_ed"]).config
+    cfg = TrainDetectorConfig(detector="lstm_ed", data=collection, out=tmp_path, epochs=1, num_envs=1, max_frames=6, progress=False)
+    first = load_detector(train_detector(cfg, config))
+    assert first.checkpoint_extra["task"] == "PressButton" and len(first.checkpoint_extra["log"]) == 1
+    cfg2 = TrainDetectorConfig(detector="lstm_ed", data=collection, out=tmp_path, epochs=2, num_envs=1, max_frames=6, progress=False)
+    second = load_detector(train_detector(cfg2, config))
+    log = second.checkpoint_extra["log"]
+    assert [e["epoch"] for e in log] == [1, 2] and log[0] == first.checkpoint_extra["log"][0]
+    with pytest.raises(ValueError, match="policy=None"):
+        TrainDetectorConfig(detector="probe")
+
+
+def test_probe_trains_on_cached_features(collection, tiny_policy, tmp_path):
+    from aed_models.checkpoint import file_sha256
+    from aed_models.train.detector import TrainDetectorConfig, train_detector
+
+    config = make_detector("probe", **TINY["probe"]).config  # feature sizes come from the policy
+    cfg = TrainDetectorConfig(detector="probe", policy=str(tiny_policy), data=collection, out=tmp_path / "probe",
+                              epochs=1, progress=False)  # fmt: skip
+    detector = load_detector(train_detector(cfg, config))
+    extra = detector.checkpoint_extra
+    assert extra["policy_name"] == "naive_dc" and extra["policy_sha256"] == file_sha256(tiny_policy)
+    assert detector.config.history_dim != DH  # taken from the policy
+    cached = list((tmp_path / "probe" / "features" / extra["policy_sha256"][:16]).glob("*.npz"))
+    assert sorted(p.stem for p in cached) == sorted(
+        f"{role}_env{e:03d}_0000" for role in ("agent_success", "agent_failure") for e in (0, 1)
+    )
+
+
+def test_feature_cache_detects_stale_and_corrupt_files(collection, tiny_policy, tmp_path):
+    from aed_models.checkpoint import file_sha256
+    from aed_models.data import load_episodes
+    from aed_models.policies import load_policy
+    from aed_models.train.feature_cache import FeatureCache, FeatureCacheError
+
+    episodes = load_episodes(collection)
+    policy, sha = load_policy(tiny_policy), file_sha256(tiny_policy)
+    cache = FeatureCache(tmp_path, sha)
+    assert cache.build(episodes, policy) == 4 and cache.build(episodes, policy) == 0
+    ref = next(e for e in episodes if e.role == "agent_failure")
+    ep = cache.load(ref)
+    assert ep.history.shape == (ref.num_frames, policy.history_dim) and ep.labels.max() == 1.0
+
+    cache.path_for(ref.path).write_bytes(b"not a zip file")
+    with pytest.raises(FeatureCacheError, match="corrupt"):
+        FeatureCache(tmp_path, sha).load(ref)
+    with pytest.raises(FeatureCacheError, match="not cached"):
+        FeatureCache(tmp_path, "0" * 64).load(ref)
+    assert cache.build(episodes, policy) == 1  # only the corrupt shard is recomputed
+    # a cache file copied in from another policy is stale, not silently used
+    other = FeatureCache(tmp_path, "f" * 16 + sha[16:])
+    other.dir.mkdir(parents=True, exist_ok=True)
+    other.path_for(ref.path).write_bytes(cache.path_for(ref.path).read_bytes())
+    with pytest.raises(FeatureCacheError, match="stale"):
+        other.load(ref)
+
+
+def test_feature_iterations_follow_the_frame_iterations(collection, tiny_policy, tmp_path):
+    from aed_models.augment import RolloutAugment
+    from aed_models.checkpoint import file_sha256
+    from aed_models.data import EnvironmentIterations, load_episodes
+    from aed_models.policies import load_policy
+    from aed_models.train.feature_cache import FeatureCache, FeatureIterations
+
+    episodes = load_episodes(collection)
+    cache = FeatureCache(tmp_path, file_sha256(tiny_policy))
+    cache.build(episodes, load_policy(tiny_policy))
+    feats = FeatureIterations(episodes, cache, "detector", augment=RolloutAugment(), max_frames=10, seed=5)
+    frames = EnvironmentIterations(episodes, "detector", augment=RolloutAugment(), max_frames=10, seed=5)
+    for item in [(0, 0), (3, 1)]:
+        a, b = feats[item], frames[item]
+        for key in ("lengths", "labels", "mask", "is_failure"):
+            assert torch.equal(a["rollouts"][key], b["rollouts"][key]), key
+        history, task = a["features"]
+        assert history.shape[:2] == a["rollouts"]["mask"].shape and (history[~a["rollouts"]["mask"]] == 0).all()
+
+
+def test_rnd_oe_scores_are_relative_to_the_training_error():
+    rnd = tiny("rnd_oe")
+    batch, features = make_batch()
+    assert float(rnd.error_scale) == 1.0  # untrained: raw errors
+    rnd.train()
+    loss, _ = rnd.loss(batch, features)  # one bias-corrected update: the scale is this loss
+    rnd.eval()
+    scores = rnd.score(batch["rollouts"], batch["demos"], features)
+    successes = batch["rollouts"]["mask"] & ~batch["rollouts"]["is_failure"][:, None]
+    assert scores[successes].mean().item() == pytest.approx(1.0, rel=1e-5)
+    assert float(rnd.error_scale) == pytest.approx(float(loss.detach()), rel=1e-6)

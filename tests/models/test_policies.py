@@ -1,0 +1,276 @@
+"""Demonstration-conditioned policies: shapes, causality, online = batched, masks, checkpoints,
+training (loss falls, resume is exact) on small synthetic collections."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from aed_models.checkpoint import CheckpointError, save_checkpoint
+from aed_models.nn import VisualHeadConfig
+from aed_models.policies import POLICIES, load_policy, make_policy, policy_config, save_policy
+from aed_models.train.policy import TrainPolicyConfig, train_policy
+from aed_tasks import trajectory
+from aed_tasks.episode import Episode
+
+H, W = 32, 40
+TINY = {
+    "naive_dc": {},
+    "dct": {"num_heads": 4, "ff_dim": 32},
+    "scan": {"lstm_hidden": 12, "attention_dim": 8},
+}
+
+
+def tiny_config(name: str, profile: str = "mini"):
+    visual = VisualHeadConfig(arch="small_cnn", out_dim=16, width=4, dropout=0.5)
+    return policy_config(name, profile, visual=visual, actor_hidden=(16, 8), **TINY[name])
+
+
+def tiny_policy(name: str, seed: int = 0, **overrides):
+    torch.manual_seed(seed)
+    return make_policy(name, tiny_config(name), **overrides)
+
+
+def sequences(n: int, lengths: list[int], seed: int) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    longest = max(lengths)
+    frames = torch.rand(n, longest, 4, H, W, generator=g)
+    mask = torch.arange(longest)[None] < torch.tensor(lengths)[:, None]
+    frames[~mask] = 0.0
+    return {"frames": frames, "mask": mask, "lengths": torch.tensor(lengths),
+            "actions": torch.randn(n, longest, 4, generator=g).clamp(-1, 1)}  # fmt: skip
+
+
+@pytest.fixture
+def batch():
+    return {"demos": sequences(3, [9, 5, 7], seed=1), "rollouts": sequences(2, [12, 8], seed=2)}
+
+
+@pytest.mark.parametrize("name", list(POLICIES))
+def test_forward_backward_shapes_and_input_unchanged(name, batch):
+    policy = tiny_policy(name, inverse_dynamics=True)
+    before = {k: {kk: vv.clone() for kk, vv in v.items()} for k, v in batch.items()}
+    out = policy(batch["rollouts"], batch["demos"])
+    assert out["pos"].shape == (2, 12, 3) and out["grip"].shape == (2, 12, 1)
+    assert out["history"].shape == (2, 12, policy.history_dim) and out["task"].shape == (2, 12, policy.task_dim)
+    assert policy.history_dim + policy.task_dim == policy.actor.body[0].in_features
+    loss, parts = policy.loss(batch)
+    loss.backward()
+    assert np.isfinite(parts["loss"]) and {"pos_mse", "grip_loss", "grip_acc", "inverse_dynamics"} <= set(parts)
+    assert all(p.grad is not None for p in policy.visual.parameters())
+    for key, group in batch.items():
+        for k, v in group.items():
+            assert torch.equal(v, before[key][k]), f"{key}[{k}] was modified"
+
+
+def test_paper_dims_match_the_papers_table():
+    for name, task_dim in (("naive_dc", 512), ("dct", 256), ("scan", 256)):
+        config = policy_config(name, "paper")
+        assert config.visual.arch == "resnet18" and config.visual.dropout == 0.5
+        policy = make_policy(name, config)
+        assert (policy.history_dim, policy.task_dim) == (256, task_dim)
+        assert policy.actor.body[0].in_features == 256 + task_dim  # 768 or 512
+
+
+@pytest.mark.parametrize("name", list(POLICIES))
+def test_causal_the_past_ignores_the_future(name, batch):
+    policy = tiny_policy(name).eval()
+    with torch.no_grad():
+        a = policy(batch["rollouts"], batch["demos"])
+        changed = {k: v.clone() for k, v in batch["rollouts"].items()}
+        changed["frames"][:, 6:] = torch.rand_like(changed["frames"][:, 6:])
+        b = policy(changed, batch["demos"])
+    for key in ("pos", "grip", "history", "task"):
+        assert torch.allclose(a[key][:, :6], b[key][:, :6], atol=1e-5), key
+    if name != "naive_dc":
+        assert not torch.allclose(a["task"][0, 6:], b["task"][0, 6:])
+
+
+@pytest.mark.parametrize("name", list(POLICIES))
+def test_online_features_equal_batched(name, batch):
+    policy = tiny_policy(name)
+    policy.set_action_stats(torch.randn(50, 4) * 0.2)
+    policy.eval()
+    rollout = batch["rollouts"]["frames"][:1]
+    with torch.no_grad():
+        feats = policy.features(rollout, torch.ones(1, 12, dtype=torch.bool), batch["demos"])
+        out = policy({"frames": rollout}, batch["demos"])
+    expected = policy.to_action(out["pos"], out["grip"])[0]
+    policy.reset(batch["demos"])
+    for t in range(12):
+        action = policy.act(rollout[0, t])
+        history, task = policy.features()
+        assert action.shape == (4,) and action.dtype == np.float32
+        assert np.all(np.abs(action) <= 1) and action[3] in (-1.0, 1.0)
+        assert torch.allclose(history, feats.history[0, t], atol=1e-5)
+        assert torch.allclose(task, feats.task[0, t], atol=1e-5)
+        assert np.allclose(action, expected[t].numpy(), atol=1e-4)
+
+
+def test_act_reads_maniskill_observations():
+    policy = tiny_policy("scan")
+    rgb = torch.randint(0, 256, (1, H, W, 3), dtype=torch.uint8)
+    depth = torch.randint(0, 5000, (1, H, W, 1), dtype=torch.int16)
+    frame = torch.cat([rgb[0].permute(2, 0, 1) / 255.0, depth[0].permute(2, 0, 1) / 5000.0])
+    demos = sequences(2, [5, 4], seed=0)
+    policy.reset(demos)
+    a = policy.act({"sensor_data": {"front": {"rgb": rgb, "depth": depth}}})
+    policy.reset(demos)
+    assert np.allclose(a, policy.act(frame), atol=1e-5)
+    with pytest.raises(ValueError, match="sensor_data/front"):
+        policy.act({"state": torch.zeros(3)})
+    fresh = tiny_policy("scan")
+    with pytest.raises(RuntimeError, match="reset"):
+        fresh.act(frame)
+
+
+@pytest.mark.parametrize("name", list(POLICIES))
+def test_padded_demos_give_the_same_task_embedding(name):
+    policy = tiny_policy(name).eval()
+    demos = sequences(3, [9, 5, 7], seed=4)
+    rollout = sequences(1, [6], seed=5)
+    one_by_one = []
+    with torch.no_grad():
+        padded = policy.features(rollout["frames"], rollout["mask"], demos).task
+        # the same demos padded further, with junk in the padding
+        longer = {"frames": torch.cat([demos["frames"], torch.rand(3, 4, 4, H, W)], dim=1),
+                  "mask": torch.cat([demos["mask"], torch.zeros(3, 4, dtype=torch.bool)], dim=1)}  # fmt: skip
+        longer["frames"][:, :9][~demos["mask"]] = torch.rand(int((~demos["mask"]).sum()), 4, H, W)
+        assert torch.allclose(policy.features(rollout["frames"], rollout["mask"], longer).task, padded, atol=1e-5)
+        if name == "naive_dc":  # the mean over demos of per-demo embeddings: check each unpadded
+            for i, n in enumerate([9, 5, 7]):
+                one = {"frames": demos["frames"][i : i + 1, :n]}
+                one_by_one.append(policy.features(rollout["frames"], rollout["mask"], one).task)
+            assert torch.allclose(torch.stack(one_by_one).mean(0), padded, atol=1e-5)
+
+
+@pytest.mark.parametrize("name", list(POLICIES))
+def test_save_load_round_trip(name, batch, tmp_path):
+    policy = tiny_policy(name)
+    policy.set_action_stats(torch.randn(40, 4))
+    save_policy(tmp_path / "p.pt", policy, extra={"epoch": 1})
+    loaded = load_policy(tmp_path / "p.pt")
+    assert type(loaded) is type(policy) and loaded.config == policy.config
+    assert torch.equal(loaded.action_std, policy.action_std)
+    policy.eval()
+    with torch.no_grad():
+        a, b = policy(batch["rollouts"], batch["demos"]), loaded(batch["rollouts"], batch["demos"])
+    assert torch.equal(a["pos"], b["pos"]) and torch.equal(a["task"], b["task"])
+
+
+def test_wrong_checkpoints_and_names_are_clear_errors(tmp_path):
+    save_policy(tmp_path / "dct.pt", tiny_policy("dct"))
+    with pytest.raises(CheckpointError, match="dct.pt: a policy checkpoint of 'dct', expected 'scan'"):
+        load_policy(tmp_path / "dct.pt", name="scan")
+    save_checkpoint(tmp_path / "det.pt", family="detector", name="probe", config={}, state_dict={})
+    with pytest.raises(CheckpointError, match="det.pt: a 'detector' checkpoint, expected a 'policy' one"):
+        load_policy(tmp_path / "det.pt")
+    config = tiny_config("dct").to_dict()
+    save_checkpoint(tmp_path / "bad.pt", family="policy", name="dct", config=config, state_dict={"w": torch.ones(1)})
+    with pytest.raises(CheckpointError, match="bad.pt: does not fit policy 'dct'"):
+        load_policy(tmp_path / "bad.pt")
+    with pytest.raises(ValueError, match="unknown policy 'bc'; known policies: naive_dc, dct, scan"):
+        make_policy("bc")
+    with pytest.raises(ValueError, match="num_heads=5"):
+        policy_config("dct", "mini", num_heads=5)
+    with pytest.raises(ValueError, match="actor_hidden"):
+        policy_config("scan", "mini", actor_hidden=())
+
+
+# --- training on a synthetic collection (no simulation) --------------------------------------
+
+
+def synthetic(role: str, env_index: int, seed: int, steps: int) -> tuple[Episode, trajectory.RecordedSteps]:
+    """Frame t shows a white bar at a random column b_t * (W - 8); the action is a function of
+    b_t: x = 2 b - 1, y = 1 - 2 b, z = 0, gripper open when b > 0.5. A policy that reads its
+    frame can learn it."""
+    rng = np.random.default_rng(seed)
+    b = rng.uniform(0.0, 1.0, steps + 1)
+    rgb = np.zeros((steps + 1, H, W, 3), np.uint8)
+    for t, column in enumerate(np.round(b * (W - 8)).astype(int)):
+        rgb[t, :, column : column + 8] = 255
+    depth = np.full((steps + 1, H, W, 1), 500 + 10 * env_index, np.int16)
+    actions = np.stack([2 * b - 1, 1 - 2 * b, np.zeros_like(b), np.where(b > 0.5, 1.0, -1.0)], axis=1)[:steps]
+    episode = Episode(
+        env_id="AED-PressButton-base", task="PressButton", split="base", env_index=env_index, seed=seed,
+        demonstrator=role == "demo", control_mode="pd_ee_delta_pos", actions=actions.astype(np.float32),
+        success=np.arange(steps) == steps - 1, fail=np.zeros(steps, bool), stage=np.zeros(steps, np.int16),
+        error_label=np.zeros(steps, np.uint8), error_kind=None, error_onset=None,
+    )  # fmt: skip
+    steps_rec = trajectory.RecordedSteps(
+        obs={"sensor_data": {"front": {"rgb": rgb, "depth": depth}}}, env_states=None,
+        terminated=np.zeros(steps, bool), truncated=np.zeros(steps, bool), rewards=np.zeros(steps, np.float32),
+        reset_kwargs={"seed": seed, "options": {"env_index": env_index}},
+    )  # fmt: skip
+    return episode, steps_rec
+
+
+@pytest.fixture(scope="module")
+def collection(tmp_path_factory) -> Path:
+    """Four environments; per env 2 demos and 4 agent successes of 8..14 steps."""
+    root = tmp_path_factory.mktemp("policy_data")
+    info = {"env_id": "aed_tasks:AED-PressButton-base", "env_kwargs": {}, "max_episode_steps": 100}
+    for env_index in range(4):
+        for role, n in (("demo", 2), ("agent_success", 4)):
+            writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
+            for k in range(n):
+                writer.add(*synthetic(role, env_index, seed=100 * env_index + 10 * (role == "demo") + k, steps=8 + 2 * k))
+            writer.commit(info, {"env_index": env_index, "group": role})
+    return root
+
+
+def train_config(collection: Path, out: Path, **kw) -> TrainPolicyConfig:
+    base = {"task": "PressButton", "data": collection, "out": out, "progress": False, "shift": 2}
+    return TrainPolicyConfig(**{**base, **kw})
+
+
+def test_training_loss_falls(collection, tmp_path):
+    cfg = train_config(collection, tmp_path / "run", policy="naive_dc", epochs=6, lr=3e-3)
+    config = tiny_config("naive_dc")
+    config.visual.dropout = 0.0
+    final = train_policy(cfg, config)
+    log = json.loads((tmp_path / "run" / "train_log.json").read_text())
+    assert [e["epoch"] for e in log] == list(range(1, 7))
+    assert log[-1]["pos_mse"] < 0.7 * log[0]["pos_mse"], log
+    policy = load_policy(final)
+    assert not policy.training and torch.allclose(policy.action_mean[2], torch.tensor(0.0))
+
+
+def test_resume_gives_the_same_weights(collection, tmp_path):
+    whole = train_policy(train_config(collection, tmp_path / "whole", policy="dct", epochs=3, num_envs=2), tiny_config("dct"))
+    train_policy(train_config(collection, tmp_path / "split", policy="dct", epochs=1, num_envs=2), tiny_config("dct"))
+    resumed = train_policy(train_config(collection, tmp_path / "split", policy="dct", epochs=3, num_envs=2), tiny_config("dct"))
+    a, b = load_policy(whole).state_dict(), load_policy(resumed).state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    log = json.loads((tmp_path / "split" / "train_log.json").read_text())
+    assert [e["epoch"] for e in log] == [1, 2, 3]
+    other = tiny_config("dct")
+    other.ff_dim = 64
+    with pytest.raises(ValueError, match="last.pt: trained with another dct config"):
+        train_policy(train_config(collection, tmp_path / "split", policy="dct", epochs=4, num_envs=2), other)
+
+
+def test_paper_profile_runs_one_iteration(collection, tmp_path):
+    cfg = train_config(collection, tmp_path / "paper", policy="scan", profile="paper", epochs=1, num_envs=1, max_frames=4, shift=None)
+    assert cfg.shift == 0
+    config = policy_config("scan", "paper")
+    assert config.visual.arch == "resnet18"
+    final = train_policy(cfg, config)
+    assert load_policy(final, name="scan").config.visual.arch == "resnet18"
+
+
+def test_train_config_defaults_and_errors():
+    mini = TrainPolicyConfig(policy="scan")
+    assert mini.max_frames == 0 and mini.num_envs == 10 and mini.out == Path("runs/PressButton/policies/scan")
+    assert TrainPolicyConfig(policy="naive_dc").max_frames == 32
+    assert TrainPolicyConfig(task="CloseDrawer", profile="paper").epochs == 160
+    paper = TrainPolicyConfig(profile="paper")
+    assert (paper.lr, paper.weight_decay, paper.shift, paper.max_frames) == (1e-4, 1e-2, 0, 0)
+    with pytest.raises(ValueError, match="policy='bc'"):
+        TrainPolicyConfig(policy="bc")
+    with pytest.raises(ValueError, match="max_frames=1"):
+        TrainPolicyConfig(max_frames=1)
