@@ -12,7 +12,20 @@ logger = logging.getLogger("aed")
 
 
 def _commands() -> dict[str, Callable[..., Any]]:
-    from aed_eval import collect, data_info, demo, doctor, render
+    from aed_eval import (
+        calibrate,
+        collect,
+        data_info,
+        demo,
+        doctor,
+        evaluate,
+        models,
+        monitor,
+        render,
+        report,
+        rollout,
+        train,
+    )
 
     return {
         "doctor": doctor.doctor,
@@ -20,6 +33,14 @@ def _commands() -> dict[str, Callable[..., Any]]:
         "render": render.render_envs,
         "collect": collect.collect,
         "data-info": data_info.data_info,
+        "train-policy": train.train_policy,
+        "train-detector": train.train_detector,
+        "rollout": rollout.rollout,
+        "calibrate": calibrate.calibrate,
+        "evaluate": evaluate.evaluate,
+        "monitor": monitor.monitor,
+        "report": report.report,
+        "models": models.models,
         "demo": demo.demo,
     }
 
@@ -38,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging()
     try:
         result = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="aed")
-    except (ValueError, KeyError, IndexError, FileNotFoundError, CollectionError) as e:
+    except (ValueError, KeyError, IndexError, FileNotFoundError, CollectionError) as e:  # CheckpointError is a ValueError
         if os.environ.get("AED_DEBUG"):
             raise
         message = e.args[0] if isinstance(e, KeyError) and e.args else e

@@ -1,13 +1,22 @@
-"""`aed demo`: the whole pipeline on a small default, end to end on a CPU machine.
+"""`aed demo`: the whole AED protocol for one task, small enough for a 2-core CPU.
 
-What exists of the protocol runs here, in order (later stages join as they land):
+Stages, each reusing what an earlier run finished (collections and rollouts resume shard by
+shard, training resumes from its last epoch):
 
-1. the benchmark: every task's base and novel environments rendered, and its expert run
-   clean and with every behaviour error in a novel environment;
-2. phase-1/2 data: a small `aed collect` of one task's base split (demonstrations, agent
-   successes, agent failures of every kind), summarised as `aed data-info` does;
-3. training batches: one iteration of the detectors' composition drawn from it, with
-   rollout augmentation, checked for aligned labels.
+1. collect the base split: demonstrations, agent successes and labelled agent failures
+   (`aed collect`), in training environments plus held-out calibration environments;
+2. phase 1: train the policies (`aed train-policy`);
+3. phase 2: train the detectors (`aed train-detector`; PrObe and rnd_oe once per policy);
+4. collect the novel split: the environments' demonstrations, and labelled expert episodes
+   (successes and injected failures) for the delay metrics;
+5. phase 3: roll every policy out in the novel environments (`aed rollout`);
+6. calibrate every detector's threshold on held-out base successes (`aed calibrate`);
+7. score the rollouts and compute the metrics (`aed evaluate`), then the report (`aed report`).
+
+Under `--profile mini` (the default) the models have the `mini` sizes but the counts are the
+demo's, smaller than `aed train-policy --profile mini` uses (sized so that the policies
+learn): the demo shows the pipeline end to end in minutes, and its numbers are those of
+briefly trained models. `--profile paper` runs the same stages at the paper's sizes.
 """
 
 from __future__ import annotations
@@ -15,113 +24,229 @@ from __future__ import annotations
 import json
 import logging
 import time
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
+
+import tyro
+
+from aed_eval.layout import RunLayout
+from aed_eval.scoring import DETECTOR_NAMES
 
 logger = logging.getLogger(__name__)
 
 
-def demo(
-    out: Path = Path("runs/demo"),
-    tasks: tuple[str, ...] = (),
-    seed: int = 0,
-    collect_task: str = "PickPlace",
-    collect_envs: int = 2,
-    workers: int = 1,
-) -> int:
-    """Render every task, run its expert clean and with every error, collect a small base-split
-    dataset of one task, and draw a training batch from it; results land under `out`.
+# Counts per profile. `mini` is the demo's CPU default (small CNN heads, a few environments,
+# briefly trained); `paper` is the paper's protocol at its sizes (ResNet18 heads, every base
+# environment but the calibration ones, 5 demos / 20 successes / 20 failures, 20 rollouts per
+# novel environment, the paper's epochs): a GPU machine's job.
+PROFILES: dict[str, dict[str, int | None]] = {
+    "mini": {"train_envs": 3, "calibration_envs": 1, "novel_envs": 2, "num_demos": 3, "num_successes": 4,
+             "num_failures": 4, "labelled": 2, "rollouts": 3, "policy_epochs": 8, "detector_epochs": 6},
+    "paper": {"train_envs": None, "calibration_envs": 4, "novel_envs": None, "num_demos": 5, "num_successes": 20,
+              "num_failures": 20, "labelled": 5, "rollouts": 20, "policy_epochs": None, "detector_epochs": None},
+}  # fmt: skip
 
-    Args:
-        out: output folder.
-        tasks: task names of the benchmark step (default: every registered task).
-        seed: episode seed of the benchmark step; root seed of the collection.
-        collect_task: the task whose base split is collected.
-        collect_envs: environments collected (2 demonstrations, 2 successes, 3 failures each).
-        workers: collection processes.
-    """
+
+@dataclass
+class DemoConfig:
+    """What `aed demo` runs (counts are per environment; unset ones take the profile's)."""
+
+    task: str = "PressButton"
+    """Task of the pipeline."""
+    profile: Literal["mini", "paper"] = "mini"
+    """mini: CPU-sized models and counts (minutes); paper: the paper's sizes (for a GPU machine)."""
+    policies: tuple[str, ...] = ("naive_dc", "dct", "scan")
+    """Policies trained and rolled out."""
+    detectors: tuple[str, ...] = DETECTOR_NAMES
+    """Detectors trained, calibrated and evaluated."""
+    runs: Path = Path("runs/demo")
+    """Root of everything the demo writes (the runs/ layout of aed_eval.layout)."""
+    train_envs: int | None = None
+    """Base environments the models train on (paper: all but the calibration ones)."""
+    calibration_envs: int | None = None
+    """Further base environments, held out for calibration."""
+    novel_envs: int | None = None
+    """Novel environments the policies are deployed in (paper: all)."""
+    num_demos: int | None = None
+    """Demonstrations per environment."""
+    num_successes: int | None = None
+    """Agent successes per base environment."""
+    num_failures: int | None = None
+    """Agent failures per base environment."""
+    labelled: int | None = None
+    """Labelled expert successes and failures (each) per novel environment."""
+    rollouts: int | None = None
+    """Policy rollouts per novel environment."""
+    policy_epochs: int | None = None
+    """Policy training epochs (paper: the paper's per task)."""
+    detector_epochs: int | None = None
+    """Detector training epochs (paper: the paper's per task)."""
+    max_episode_steps: int | None = None
+    """Time limit of a rollout (default: the task's)."""
+    alpha: float = 0.2
+    """False-alarm rate of the calibrated thresholds."""
+    workers: int = 2
+    """Simulation processes for collection and rollouts."""
+    seed: int = 0
+    """Root seed of every stage."""
+
+    def __post_init__(self) -> None:
+        import aed_tasks
+
+        try:
+            task_cls = aed_tasks.get_task(self.task)
+        except KeyError as e:
+            raise ValueError(f"task={self.task!r}: {e.args[0]}") from None
+        self.task = task_cls.task_name
+        if self.profile not in PROFILES:
+            raise ValueError(f"profile={self.profile!r}: known {sorted(PROFILES)}")
+        for name, value in PROFILES[self.profile].items():
+            if getattr(self, name) is None:
+                setattr(self, name, value)
+        sizes = task_cls.catalogue_sizes
+        if self.train_envs is None:
+            self.train_envs = sizes["base"] - self.calibration_envs
+        if self.novel_envs is None:
+            self.novel_envs = sizes["novel"]
+        for name in ("train_envs", "calibration_envs", "novel_envs", "num_demos", "num_successes", "num_failures",
+                     "rollouts", "workers"):  # fmt: skip
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
+        if self.train_envs + self.calibration_envs > sizes["base"]:
+            raise ValueError(f"train_envs={self.train_envs} + calibration_envs={self.calibration_envs}: "
+                             f"{self.task} has {sizes['base']} base environments")  # fmt: skip
+        if self.novel_envs > sizes["novel"]:
+            raise ValueError(f"novel_envs={self.novel_envs}: {self.task} has {sizes['novel']} novel environments")
+        self.runs = Path(self.runs)
+
+
+class Stages:
+    """Runs the stages in order, timing each (seconds in `times`)."""
+
+    def __init__(self, cfg: DemoConfig):
+        self.cfg = cfg
+        self.layout = RunLayout(cfg.runs)
+        self.times: dict[str, float] = {}
+
+    def timed(self, name: str, fn: Any, *args: Any) -> Any:
+        logger.info("demo: %s", name)
+        start = time.perf_counter()
+        result = fn(*args)
+        self.times[name] = round(time.perf_counter() - start, 1)
+        logger.info("demo: %s done in %.0f s", name, self.times[name])
+        return result
+
+    def collect_base(self) -> None:
+        from aed_eval.collect import CollectConfig, run_collection
+
+        c = self.cfg
+        run_collection(CollectConfig(
+            task=c.task, split="base", num_envs=c.train_envs + c.calibration_envs, num_demos=c.num_demos,
+            num_successes=c.num_successes, num_failures=c.num_failures, workers=c.workers, seed=c.seed,
+            out=self.layout.data(c.task, "base"), profile=c.profile, shard_size=5,
+        ))  # fmt: skip
+
+    def train_policies(self) -> None:
+        from aed_models.train.policy import TrainPolicyConfig, train_policy
+
+        c = self.cfg
+        for policy in c.policies:
+            train_policy(TrainPolicyConfig(
+                task=c.task, policy=policy, profile=c.profile, data=self.layout.data(c.task, "base"),
+                out=self.layout.policy(c.task, policy).parent, epochs=c.policy_epochs, num_envs=c.train_envs,
+                seed=c.seed,
+            ))  # fmt: skip
+
+    def train_detectors(self) -> None:
+        from aed_models.detectors import DETECTORS
+        from aed_models.train.detector import TrainDetectorConfig, train_detector
+
+        c = self.cfg
+        for detector in c.detectors:
+            per_policy = DETECTORS[detector].model_type().requires_policy
+            for policy in c.policies if per_policy else c.policies[:1]:
+                train_detector(TrainDetectorConfig(
+                    task=c.task, detector=detector, policy=str(self.layout.policy(c.task, policy)) if per_policy else None,
+                    profile=c.profile, data=self.layout.data(c.task, "base"), epochs=c.detector_epochs,
+                    out=self.layout.detector(c.task, detector, policy).parent, num_envs=c.train_envs, seed=c.seed,
+                ))  # fmt: skip
+
+    def collect_novel(self) -> None:
+        from aed_eval.collect import CollectConfig, run_collection
+
+        c = self.cfg
+        common = {"task": c.task, "split": "novel", "num_envs": c.novel_envs, "workers": c.workers, "seed": c.seed,
+                  "profile": c.profile, "shard_size": 5}  # fmt: skip
+        run_collection(CollectConfig(**common, num_demos=c.num_demos, num_successes=0, num_failures=0,
+                                     out=self.layout.data(c.task, "novel")))  # fmt: skip
+        if c.labelled:
+            run_collection(CollectConfig(**common, num_demos=0, num_successes=c.labelled, num_failures=c.labelled,
+                                         out=self.layout.labelled(c.task, "novel")))  # fmt: skip
+
+    def roll_out(self) -> None:
+        from aed_eval.rollout import RolloutConfig, run_rollouts
+
+        c = self.cfg
+        for policy in c.policies:
+            run_rollouts(RolloutConfig(task=c.task, policy=policy, runs=c.runs, num_envs=c.novel_envs, profile=c.profile,
+                                       num_episodes=c.rollouts, num_demos=c.num_demos, workers=c.workers,
+                                       max_episode_steps=c.max_episode_steps, seed=c.seed))  # fmt: skip
+
+    def calibrate(self) -> None:
+        from aed_eval.calibrate import CalibrateConfig, calibrate_detectors
+
+        c = self.cfg
+        for policy in c.policies:
+            calibrate_detectors(CalibrateConfig(task=c.task, policy=policy, detectors=c.detectors, alpha=c.alpha,
+                                                num_demos=c.num_demos, runs=c.runs))  # fmt: skip
+
+    def evaluate(self) -> list[Path]:
+        from aed_eval.evaluate import EvaluateConfig, evaluate_policy
+
+        c = self.cfg
+        paths = []
+        for policy in c.policies:
+            cfg = EvaluateConfig(task=c.task, policy=policy, detectors=c.detectors, num_demos=c.num_demos, runs=c.runs,
+                                 seed=c.seed)  # fmt: skip
+            evaluate_policy(cfg)
+            paths.append(Path(cfg.out) / "results.json")
+        return paths
+
+    def report(self, results: list[Path]) -> Path:
+        from aed_eval.report import ReportConfig, make_report
+
+        return make_report(ReportConfig(results=tuple(results), out=self.layout.report()))
+
+
+def run_demo(cfg: DemoConfig) -> tuple[Path, dict[str, float]]:
+    """Every stage in order; returns the report's path and the stage times."""
+    stages = Stages(cfg)
+    stages.timed("collect base split", stages.collect_base)
+    stages.timed("train policies", stages.train_policies)
+    stages.timed("train detectors", stages.train_detectors)
+    stages.timed("collect novel split", stages.collect_novel)
+    stages.timed("roll out policies", stages.roll_out)
+    stages.timed("calibrate detectors", stages.calibrate)
+    results = stages.timed("evaluate", stages.evaluate)
+    path = stages.timed("report", stages.report, results)
+    return path, stages.times
+
+
+def demo(cfg: Annotated[DemoConfig, tyro.conf.arg(name="")]) -> int:
+    """The whole AED pipeline for one task on this CPU: collect, train, roll out, calibrate, evaluate, report."""
     from aed_eval.doctor import rendering_device
 
     if rendering_device() is None:
         logger.error("SAPIEN finds no rendering device: run `aed doctor`")
         return 1
-    experts = run_experts(out, tasks, seed)
-    data = collect_data(out / "data" / collect_task, collect_task, collect_envs, seed, workers)
-    batch = draw_batch(out / "data" / collect_task, seed)
-    summary = {"experts": experts, "data": data, "batch": batch}
-    (out / "demo.json").write_text(json.dumps(summary, indent=2, default=str))
-    ok = all(r["success"] == (r["error"] == "none") for r in experts) and batch["labels_aligned"]
-    logger.info("demo %s: results under %s", "finished" if ok else "FAILED", out)
-    return 0 if ok else 1
-
-
-def run_experts(out: Path, tasks: tuple[str, ...], seed: int) -> list[dict[str, Any]]:
-    """Images of every task, then its expert clean and with each error (novel env 0)."""
-    import gymnasium as gym
-
-    import aed_tasks
-    from aed_eval.render import render_envs
-
-    tasks = tasks or tuple(aed_tasks.TASKS)
-    images = render_envs(tasks=tasks, out=out / "images", seed=seed, large=False)
-    logger.info("wrote %d images under %s", len(images), out / "images")
-    rows = []
-    for task in tasks:
-        env = gym.make(aed_tasks.env_id(task, "novel"), obs_mode="state")
-        for kind in (None, *aed_tasks.get_task(task).error_kinds):
-            start = time.perf_counter()
-            episode = aed_tasks.solve(env, seed, aed_tasks.ErrorSpec(kind) if kind else None, env_index=0)
-            rows.append({
-                "task": task, "error": kind or "none", "steps": len(episode), "success": episode.succeeded,
-                "onset": episode.error_onset, "seconds": round(time.perf_counter() - start, 2),
-            })  # fmt: skip
-            logger.info("%s", rows[-1])
-        env.close()
-    out.mkdir(parents=True, exist_ok=True)
-    table = ["| task | injected error | steps | success | onset |", "|---|---|---|---|---|"]
-    table += [f"| {r['task']} | {r['error']} | {r['steps']} | {r['success']} | {r['onset']} |" for r in rows]
-    (out / "experts.md").write_text("\n".join(table) + "\n")
-    print("\n".join(table))
-    return rows
-
-
-def collect_data(out: Path, task: str, num_envs: int, seed: int, workers: int) -> dict[str, Any]:
-    """A small base-split collection (resumes if `out` holds part of it)."""
-    import aed_tasks
-    from aed_eval.collect import CollectConfig, run_collection
-    from aed_eval.data_info import format_summary, summarize
-
-    kinds = len(aed_tasks.get_task(task).error_kinds)
-    cfg = CollectConfig(
-        task=task, split="base", out=out, num_envs=num_envs, num_demos=2, num_successes=2,
-        num_failures=kinds, seed=seed, workers=workers,
-    )  # fmt: skip
-    run_collection(cfg)
-    info = summarize(out)
-    print(format_summary(info))
-    return info
-
-
-def draw_batch(root: Path, seed: int) -> dict[str, Any]:
-    """One detector training iteration (5 demos + 10 successes + 10 failures), augmented."""
-    from aed_models.augment import RolloutAugment
-    from aed_models.data import EnvironmentIterations, load_episodes
-
-    data = EnvironmentIterations(load_episodes(root), "detector", augment=RolloutAugment(), max_frames=64, seed=seed)
-    batch = data[0]
-    rollouts = batch["rollouts"]
-    aligned = all(
-        plausible_labels(rollouts["labels"][i, :n], bool(rollouts["is_failure"][i]))
-        for i, n in enumerate(rollouts["lengths"].tolist())
-    )
-    shapes = {k: list(v["frames"].shape) for k, v in (("demos", batch["demos"]), ("rollouts", rollouts))}
-    logger.info("training batch of environment %d: %s, labels aligned: %s", batch["env_index"], shapes, aligned)
-    return {"env_index": batch["env_index"], "shapes": shapes, "labels_aligned": bool(aligned)}
-
-
-def plausible_labels(labels: Any, failure: bool) -> bool:
-    """A success is normal throughout; a failure starts normal and turns to error.
-
-    (Augmentation may swap two frames at the onset; exact alignment is checked by the tests.)
-    """
-    return bool(labels[0] == 0 and labels.any()) if failure else not bool(labels.any())
+    start = time.perf_counter()
+    path, times = run_demo(cfg)
+    total = time.perf_counter() - start
+    summary = {"config": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()},
+               "stage_seconds": times, "total_seconds": round(total, 1), "report": str(path)}  # fmt: skip
+    (cfg.runs / "demo.json").write_text(json.dumps(summary, indent=2))
+    print(path.read_text())
+    print("stage times: " + ", ".join(f"{k} {v:.0f} s" for k, v in times.items()))
+    print(f"demo finished in {total / 60:.1f} min; report: {path}")
+    return 0

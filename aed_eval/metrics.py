@@ -179,7 +179,7 @@ def alarm_rates(scores: Sequence[np.ndarray], failed: np.ndarray, threshold: flo
     steps = [a for a, f in zip(alarms, failed, strict=True) if f and a is not None]
     fractions = [a / max(len(s) - 1, 1) for a, s, f in zip(alarms, scores, failed, strict=True) if f and a is not None]
     return AlarmRates(
-        threshold=threshold, tpr=tpr, tnr=tnr, balanced_accuracy=float(np.nanmean([tpr, tnr])),
+        threshold=threshold, tpr=tpr, tnr=tnr, balanced_accuracy=(tpr + tnr) / 2,  # nan without both outcomes
         detection_step_mean=float(np.mean(steps)) if steps else float("nan"),
         detection_fraction_mean=float(np.mean(fractions)) if fractions else float("nan"),
     )  # fmt: skip

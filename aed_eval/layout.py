@@ -1,0 +1,47 @@
+"""Where the protocol's files live: one convention under a runs folder (default `runs/`).
+
+    runs/<task>/data/<split>                       aed collect (base: training; novel: demonstrations)
+    runs/<task>/data/<split>-labelled              labelled expert episodes of the novel split
+    runs/<task>/policies/<policy>/policy.pt        aed train-policy
+    runs/<task>/detectors/<detector>[-<policy>]/   aed train-detector (detector.pt), aed calibrate
+    runs/<task>/rollouts/<policy>/<split>          aed rollout
+    runs/<task>/<policy>/eval                      aed evaluate
+    runs/report                                    aed report
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class RunLayout:
+    root: Path = Path("runs")
+
+    def data(self, task: str, split: str = "base") -> Path:
+        return Path(self.root) / task / "data" / split
+
+    def labelled(self, task: str, split: str = "novel") -> Path:
+        return Path(self.root) / task / "data" / f"{split}-labelled"
+
+    def policy(self, task: str, policy: str) -> Path:
+        return Path(self.root) / task / "policies" / policy / "policy.pt"
+
+    def detector(self, task: str, detector: str, policy: str) -> Path:
+        """Policy-dependent detectors are trained per policy: `<detector>-<policy>`."""
+        from aed_models.detectors import DETECTORS
+
+        if detector not in DETECTORS:
+            raise ValueError(f"unknown detector {detector!r}: known {sorted(DETECTORS)}")
+        suffix = f"-{policy}" if DETECTORS[detector].model_type().requires_policy else ""
+        return Path(self.root) / task / "detectors" / f"{detector}{suffix}" / "detector.pt"
+
+    def rollouts(self, task: str, policy: str, split: str = "novel") -> Path:
+        return Path(self.root) / task / "rollouts" / policy / split
+
+    def evaluation(self, task: str, policy: str) -> Path:
+        return Path(self.root) / task / policy / "eval"
+
+    def report(self) -> Path:
+        return Path(self.root) / "report"

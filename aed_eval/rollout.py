@@ -1,0 +1,320 @@
+"""`aed rollout`: phase 3 of the protocol, a trained policy acting in environments it never saw.
+
+In every chosen environment of a split (the novel one by default), the policy runs N episodes
+conditioned on that environment's demonstrations, which the demonstrator recorded with
+`aed collect --split <split>` (`runs/<task>/data/<split>` by default). Episodes are stored in
+the episode format with role `policy_rollout`, the env's `success` / `stage` per step, and
+the policy's name and checkpoint sha256; frame labels are unknown in these environments and
+stored as zeros with `labels_known: false`.
+
+A successful rollout ends at its first success step (ManiSkill's termination), a failed one
+runs to the time limit. Work is cut into shards of (environment, index range) exactly like
+`aed collect`: seeds derive from the shard's identity, so any number of workers (or Ray)
+gives the same rollouts, and a killed run re-run with the same arguments redoes only the
+shards that were never committed.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import tyro
+
+from aed_eval.collect import episode_seed, plain_value, prepare_folder
+from aed_eval.executors import execute
+from aed_eval.layout import RunLayout
+from aed_tasks import trajectory
+
+logger = logging.getLogger(__name__)
+
+ROLE = "policy_rollout"
+PROFILES: dict[str, dict[str, int | None]] = {
+    "paper": {"num_envs": None, "num_episodes": 20, "num_demos": 5},
+    "mini": {"num_envs": 4, "num_episodes": 5, "num_demos": 5},
+}
+IDENTITY = ("task", "split", "policy", "policy_sha256", "seed", "num_demos", "shard_size", "max_episode_steps")
+
+
+@dataclass
+class RolloutConfig:
+    """What `aed rollout` runs, and how (counts are per environment)."""
+
+    task: str = "PressButton"
+    """Task name (e.g. PressButton)."""
+    policy: str = "naive_dc"
+    """Policy name (naive_dc, dct, scan)."""
+    checkpoint: Path | None = None
+    """Policy checkpoint (default: runs/<task>/policies/<policy>/policy.pt)."""
+    split: Literal["base", "novel"] = "novel"
+    """Catalogue split to act in."""
+    demos: Path | None = None
+    """Collection holding the split's demonstrations (default: runs/<task>/data/<split>)."""
+    out: Path | None = None
+    """Output folder (default: runs/<task>/rollouts/<policy>/<split>). Re-running resumes into it."""
+    profile: Literal["paper", "mini"] = "mini"
+    """paper: every environment, 20 episodes each; mini: 4 environments, 5 episodes each."""
+    envs: tuple[int, ...] = ()
+    """Explicit environment indices (default: the first `num_envs` that have demonstrations)."""
+    num_envs: int | None = None
+    """Use the first N environments (default: the profile's; paper: all)."""
+    num_episodes: int | None = None
+    """Rollouts per environment."""
+    num_demos: int | None = None
+    """Demonstrations the policy is conditioned on (the first N of the environment's)."""
+    shard_size: int = 10
+    """Episodes per shard file (the unit of atomic writes and of resuming)."""
+    workers: int = 1
+    """Parallel workers (1: in this process)."""
+    executor: Literal["local", "ray"] = "local"
+    """local: a process pool on this machine; ray: Ray actors (pip install aed-toolkit[ray])."""
+    ray_address: str | None = None
+    """Ray cluster address."""
+    max_episode_steps: int | None = None
+    """Time limit of an episode (default: the task's)."""
+    seed: int = 0
+    """Root seed; every episode's seed derives from it (the same for every policy)."""
+    runs: Path = Path("runs")
+    """Root of the runs folder (see aed_eval.layout)."""
+    progress: bool = True
+    """Show a progress bar."""
+    policy_sha256: str = field(default="", init=False)
+
+    def __post_init__(self) -> None:
+        import aed_tasks
+        from aed_models.checkpoint import file_sha256
+        from aed_models.policies import POLICIES
+
+        try:
+            task_cls = aed_tasks.get_task(self.task)
+        except KeyError as e:
+            raise ValueError(f"task={self.task!r}: {e.args[0]}") from None
+        self.task = task_cls.task_name
+        if self.policy not in POLICIES:
+            raise ValueError(f"policy={self.policy!r}: known {sorted(POLICIES)}")
+        if self.profile not in PROFILES:
+            raise ValueError(f"profile={self.profile!r}: known {sorted(PROFILES)}")
+        if self.envs and self.num_envs is not None:
+            raise ValueError(f"envs={self.envs} and num_envs={self.num_envs}: give one of them")
+        for name, value in PROFILES[self.profile].items():
+            if getattr(self, name) is None:
+                setattr(self, name, value)
+        for name in ("num_episodes", "num_demos", "shard_size", "workers", "max_episode_steps"):
+            if getattr(self, name) is not None and getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
+        size = task_cls.catalogue_sizes[self.split]
+        bad = [i for i in self.envs if not 0 <= i < size]
+        if bad:
+            raise ValueError(f"envs={bad}: {self.task}-{self.split} has environments 0..{size - 1}")
+        layout = RunLayout(self.runs)
+        self.checkpoint = Path(self.checkpoint or layout.policy(self.task, self.policy))
+        if not self.checkpoint.is_file():
+            raise FileNotFoundError(f"{self.checkpoint}: no policy checkpoint; train it with "
+                                    f"`aed train-policy --task {self.task} --policy {self.policy}`")  # fmt: skip
+        self.policy_sha256 = file_sha256(self.checkpoint)
+        self.demos = Path(self.demos or layout.data(self.task, self.split))
+        self.out = Path(self.out or layout.rollouts(self.task, self.policy, self.split))
+
+    def identity(self) -> dict[str, Any]:
+        return {k: plain_value(getattr(self, k)) for k in IDENTITY}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: plain_value(v) for k, v in asdict(self).items()}
+
+
+@dataclass(frozen=True)
+class RolloutShard:
+    """Rollouts start..start+count-1 of one environment."""
+
+    task: str
+    split: str
+    env_index: int
+    start: int
+    count: int
+
+    @property
+    def stem(self) -> str:
+        return f"{ROLE}_env{self.env_index:03d}_{self.start:04d}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def demonstrations(root: Path, split: str) -> dict[int, list[trajectory.EpisodeRef]]:
+    """The optimal demonstrations of every environment of a collection, in recorded order."""
+    by_env: dict[int, list[trajectory.EpisodeRef]] = {}
+    for ref in trajectory.scan_collection(root).episodes():
+        if ref.role == "demo" and not ref.suboptimal and ref.split == split:
+            by_env.setdefault(ref.env_index, []).append(ref)
+    return by_env
+
+
+def plan_shards(cfg: RolloutConfig, available: list[int]) -> list[RolloutShard]:
+    if cfg.envs:
+        missing = sorted(set(cfg.envs) - set(available))
+        if missing:
+            raise ValueError(f"environments {missing} have no demonstrations in {cfg.demos}; collect them with "
+                             f"`aed collect --task {cfg.task} --split {cfg.split} --envs ...`")  # fmt: skip
+        env_indices = list(cfg.envs)
+    else:
+        env_indices = sorted(available)[: cfg.num_envs]
+    return [
+        RolloutShard(cfg.task, cfg.split, env_index, start, min(cfg.shard_size, cfg.num_episodes - start))
+        for env_index in env_indices
+        for start in range(0, cfg.num_episodes, cfg.shard_size)
+    ]
+
+
+@dataclass
+class RolloutResult:
+    stem: str
+    episodes: int
+    steps: int
+    successes: int
+    seconds: float
+
+
+class RolloutRunner:
+    """Runs rollout shards in one process: one env, one policy, the demos of each environment."""
+
+    def __init__(self, cfg: RolloutConfig):
+        import gymnasium as gym
+
+        import aed_tasks
+        from aed_models.policies import load_policy
+
+        self.cfg = cfg
+        self.policy = load_policy(cfg.checkpoint).eval()
+        limit = {} if cfg.max_episode_steps is None else {"max_episode_steps": cfg.max_episode_steps}
+        env = gym.make(aed_tasks.env_id(cfg.task, cfg.split), obs_mode="rgbd", **limit)
+        self.env = trajectory.make_step_recorder(env, record_env_states=True)
+        self.demo_refs = demonstrations(Path(cfg.demos), cfg.split)
+        self._demos: dict[int, dict[str, Any]] = {}
+
+    def close(self) -> None:
+        self.env.close()
+
+    def demos(self, env_index: int) -> dict[str, Any]:
+        """The first `num_demos` demonstrations of an environment, padded (read once)."""
+        if env_index not in self._demos:
+            from aed_models.data import EpisodeReader, pad_sequences
+
+            reader = EpisodeReader()
+            refs = self.demo_refs[env_index][: self.cfg.num_demos]
+            self._demos[env_index] = pad_sequences([reader.read(ref) for ref in refs])
+            reader.close()
+        return self._demos[env_index]
+
+    def run(self, shard: RolloutShard, tick: Callable[[int], None] | None = None) -> RolloutResult:
+        start = time.perf_counter()
+        steps = successes = 0
+        with trajectory.ShardWriter(Path(self.cfg.out) / f"{shard.stem}.h5") as writer:
+            for k in range(shard.start, shard.start + shard.count):
+                episode = self.episode(shard, k)
+                writer.add(episode, self.env.take(), role=ROLE, policy=self.cfg.policy,
+                           policy_sha256=self.cfg.policy_sha256, labels_known=False, index=k)  # fmt: skip
+                steps += len(episode)
+                successes += episode.succeeded
+                if tick is not None:
+                    tick(1)
+            writer.commit(trajectory.env_info(self.env), shard.to_dict(), source_type="policy",
+                          source_desc=f"AED policy {self.cfg.policy} ({self.cfg.policy_sha256[:12]}), aed_eval.rollout")  # fmt: skip
+        return RolloutResult(shard.stem, shard.count, steps, successes, time.perf_counter() - start)
+
+    def episode(self, shard: RolloutShard, k: int) -> Any:
+        """One rollout until success, irrecoverable failure or the time limit."""
+        import torch
+
+        from aed_tasks.episode import Episode
+
+        seed = episode_seed(self.cfg.seed, shard.task, shard.split, shard.env_index, ROLE, k, 0)
+        obs, _ = self.env.reset(seed=seed, options={"env_index": shard.env_index})
+        with torch.no_grad():
+            self.policy.reset(self.demos(shard.env_index))
+            actions, success, fail, stage = [], [], [], []
+            done = False
+            while not done:
+                action = self.policy.act(obs)
+                obs, _, terminated, truncated, info = self.env.step(action)
+                actions.append(np.asarray(action, dtype=np.float32))
+                success.append(_flag(info["success"]))
+                fail.append(_flag(info["fail"]))
+                stage.append(int(np.asarray(info["stage"]).reshape(-1)[0]))
+                done = _flag(terminated) or _flag(truncated)
+        base = self.env.unwrapped
+        return Episode(
+            env_id=base.spec.id, task=shard.task, split=shard.split, env_index=base.env_index, seed=seed,
+            demonstrator=False, control_mode=base.control_mode, actions=np.asarray(actions).reshape(-1, 4),
+            success=np.asarray(success), fail=np.asarray(fail), stage=np.asarray(stage, dtype=np.int16),
+            error_label=np.zeros(len(actions), dtype=np.uint8),
+        )  # fmt: skip
+
+
+def _flag(x: Any) -> bool:
+    x = x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
+    return bool(x.reshape(-1)[0])
+
+
+@dataclass
+class RolloutSummary:
+    out: Path
+    planned: int
+    skipped: int
+    results: list[RolloutResult] = field(default_factory=list)
+
+    @property
+    def episodes(self) -> int:
+        return sum(r.episodes for r in self.results)
+
+    @property
+    def successes(self) -> int:
+        return sum(r.successes for r in self.results)
+
+
+def run_rollouts(cfg: RolloutConfig) -> RolloutSummary:
+    """Run every planned rollout shard that is not committed yet (resume = run again)."""
+    from tqdm.auto import tqdm
+
+    available = sorted(demonstrations(Path(cfg.demos), cfg.split))
+    if not available:
+        raise FileNotFoundError(f"{cfg.demos}: no {cfg.split} demonstrations; collect them with "
+                                f"`aed collect --task {cfg.task} --split {cfg.split}`")  # fmt: skip
+    shards = plan_shards(cfg, available)
+    todo = prepare_folder(cfg, shards)
+    summary = RolloutSummary(Path(cfg.out), len(shards), len(shards) - len(todo))
+    total = sum(s.count for s in todo)
+    logger.info("%s %s-%s: %d shards planned, %d already committed, %d rollouts to run in %s",
+                cfg.policy, cfg.task, cfg.split, len(shards), summary.skipped, total, cfg.out)  # fmt: skip
+    with tqdm(total=total, unit="ep", desc=f"rollout {cfg.policy} {cfg.task}-{cfg.split}",
+              disable=not cfg.progress, dynamic_ncols=True) as bar:  # fmt: skip
+        execute(todo, partial(RolloutRunner, cfg), on_done=summary.results.append, workers=cfg.workers,
+                executor=cfg.executor, ray_address=cfg.ray_address, progress=bar)  # fmt: skip
+    return summary
+
+
+def success_rates(root: Path) -> dict[int, float]:
+    """Success rate of the stored rollouts of each environment."""
+    per_env: dict[int, list[bool]] = {}
+    for ref in trajectory.scan_collection(root).episodes():
+        if ref.role == ROLE:
+            per_env.setdefault(ref.env_index, []).append(ref.success)
+    return {env: float(np.mean(v)) for env, v in sorted(per_env.items())}
+
+
+# --- command -----------------------------------------------------------------------------------
+def rollout(cfg: Annotated[RolloutConfig, tyro.conf.arg(name="")]) -> int:
+    """Roll a trained policy out in a split's environments (resumes into --out)."""
+    start = time.perf_counter()
+    summary = run_rollouts(cfg)
+    rates = success_rates(summary.out)
+    values = np.asarray(list(rates.values()))
+    print(f"{summary.out}: {summary.planned} shards ({summary.skipped} already there), ran {summary.episodes} "
+          f"rollouts in {time.perf_counter() - start:.1f} s; success rate over {len(rates)} environments "
+          f"{100 * values.mean():.1f} ± {100 * values.std():.1f}%")  # fmt: skip
+    return 0

@@ -1,0 +1,100 @@
+"""The whole protocol at toy sizes (`aed demo`'s stages), and its bad-input errors.
+
+One Press Button pipeline: base collection, a NaiveDC policy, PrObe and LSTMED, novel
+demonstrations and labelled episodes, rollouts, calibration, evaluation and the report.
+The models are barely trained: this checks that the stages fit together and that every
+file the next stage reads is there and consistent, not what the numbers are.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aed_eval.demo import DemoConfig, run_demo
+from aed_eval.layout import RunLayout
+from aed_eval.scoring import load_checked_detector
+
+AED = str(Path(sys.executable).with_name("aed"))
+TASK = "PressButton"
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory) -> tuple[DemoConfig, Path]:
+    runs = tmp_path_factory.mktemp("runs")
+    cfg = DemoConfig(task=TASK, policies=("naive_dc",), detectors=("probe", "lstm_ed"), runs=runs, train_envs=1,
+                     calibration_envs=1, novel_envs=1, num_demos=1, num_successes=2, num_failures=2, labelled=1,
+                     rollouts=2, policy_epochs=1, detector_epochs=1, max_episode_steps=30, alpha=0.5, workers=1)  # fmt: skip
+    report, times = run_demo(cfg)
+    assert set(times) >= {"collect base split", "train policies", "train detectors", "evaluate", "report"}
+    return cfg, report
+
+
+@pytest.mark.slow
+def test_every_stage_leaves_what_the_next_reads(pipeline):
+    cfg, report = pipeline
+    layout = RunLayout(cfg.runs)
+    results = json.loads((layout.evaluation(TASK, "naive_dc") / "results.json").read_text())
+    assert results["rollouts"]["count"] == 2 and results["rollouts"]["horizon"] == 30
+    assert set(results["detectors"]) == {"probe", "lstm_ed"} and set(results["references"]) == {"time_only", "random"}
+    for row in results["detectors"].values():
+        assert "calibrated" in row and 0.0 <= row["calibrated"]["tpr"] <= 1.0
+        assert 0.0 <= row["labelled"]["frame_auroc"] <= 1.0 and sum(row["labelled"]["delays"]["counts"].values()) == 1
+    calibration = json.loads((layout.detector(TASK, "probe", "naive_dc").parent / "calibration.json").read_text())
+    assert calibration["envs"] == [1] and calibration["num_rollouts"] == 2 and np.isfinite(calibration["threshold"])
+    scores = json.loads((layout.evaluation(TASK, "naive_dc") / "scores.json").read_text())
+    assert [len(s) for s in scores["rollouts"]["scores"]["probe"]] == [31, 31]
+    text = report.read_text()
+    assert "| PressButton / naive_dc |" in text and "probe" in text and "*time_only*" in text
+    assert (report.parent / "roc_PressButton_naive_dc.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_detectors_of_another_policy_or_task_are_refused(pipeline):
+    cfg, _ = pipeline
+    layout = RunLayout(cfg.runs)
+    probe = layout.detector(TASK, "probe", "naive_dc")
+    with pytest.raises(ValueError, match="not on the evaluated checkpoint"):
+        load_checked_detector(probe, "probe", TASK, policy_sha256="0" * 64)
+    with pytest.raises(ValueError, match="trained for task 'PressButton', not 'PickPlace'"):
+        load_checked_detector(layout.detector(TASK, "lstm_ed", "naive_dc"), "lstm_ed", "PickPlace", "")
+
+
+@pytest.mark.slow
+def test_a_rerun_reuses_finished_stages(pipeline):
+    cfg, _ = pipeline
+    checkpoint = RunLayout(cfg.runs).policy(TASK, "naive_dc")
+    before = checkpoint.stat().st_mtime_ns
+    _, times = run_demo(cfg)
+    assert times["collect base split"] < 30 and times["roll out policies"] < 30, times
+    assert checkpoint.stat().st_mtime_ns >= before
+
+
+@pytest.mark.parametrize(("args", "named"), [
+    (["evaluate", "--task", "Juggle"], "task='Juggle'"),
+    (["evaluate", "--task", TASK, "--policy", "juggle"], "policy='juggle'"),
+    (["evaluate", "--task", TASK, "--detectors", "juggle"], "detectors=['juggle']"),
+    (["rollout", "--task", TASK, "--policy", "juggle"], "policy='juggle'"),
+    (["report", "--results", "/nonexistent/results.json"], "/nonexistent/results.json"),
+])  # fmt: skip
+def test_bad_input_is_one_line_and_status_2(args, named):
+    result = subprocess.run([AED, *args], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and named in result.stderr, result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_missing_rollouts_and_mismatched_checkpoints_are_named(pipeline, tmp_path):
+    cfg, _ = pipeline
+    runs = tmp_path / "runs"
+    shutil.copytree(cfg.runs, runs)
+    shutil.rmtree(RunLayout(runs).rollouts(TASK, "naive_dc"))
+    result = subprocess.run([AED, "evaluate", "--task", TASK, "--policy", "naive_dc", "--detectors", "probe",
+                             "--runs", str(runs)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert result.returncode == 2 and "no such collection folder" in result.stderr, result.stderr
