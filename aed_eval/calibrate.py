@@ -24,8 +24,8 @@ from aed_eval import metrics
 from aed_eval.layout import RunLayout
 from aed_eval.scoring import (
     DETECTOR_NAMES,
+    Demonstrations,
     EpisodeScorer,
-    demonstrations_by_env,
     load_checked_detector,
 )
 from aed_tasks import trajectory
@@ -126,7 +126,7 @@ def calibrate_detectors(cfg: CalibrateConfig) -> dict[str, dict[str, Any]]:
         if not refs:
             raise ValueError(f"{name}: no held-out successful base episodes in {cfg.data} (environments {envs}); "
                              "collect more base environments than the detector trains on, or pass --envs")  # fmt: skip
-        scorer = EpisodeScorer([detector], policy, demonstrations_by_env(Path(cfg.data), "base", cfg.num_demos, envs))
+        scorer = EpisodeScorer([detector], policy, Demonstrations(Path(cfg.data), "base", cfg.num_demos))
         maxima = np.asarray([
             scorer.score(ref)[name].max() for ref in tqdm(refs, desc=f"calibrate {name}", disable=not cfg.progress)
         ])  # fmt: skip

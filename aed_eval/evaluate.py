@@ -35,8 +35,8 @@ from aed_eval.calibrate import load_policy_checked, read_calibration
 from aed_eval.layout import RunLayout
 from aed_eval.scoring import (
     DETECTOR_NAMES,
+    Demonstrations,
     EpisodeScorer,
-    demonstrations_by_env,
     load_checked_detector,
 )
 from aed_tasks import trajectory
@@ -175,8 +175,8 @@ def evaluate_policy(cfg: EvaluateConfig) -> dict[str, Any]:
                          f"{layout.policy(cfg.task, cfg.policy)} is {policy_sha[:12]}; re-run aed rollout")  # fmt: skip
     detectors = [load_checked_detector(layout.detector(cfg.task, d, cfg.policy), d, cfg.task, policy_sha)
                  for d in cfg.detectors]  # fmt: skip
-    envs = sorted({r.env_index for r in refs})
-    scorer = EpisodeScorer(detectors, policy, demonstrations_by_env(Path(cfg.demos), cfg.split, cfg.num_demos, envs))
+    roots = [Path(cfg.demos)] + ([Path(cfg.labelled)] if cfg.labelled is not None else [])
+    scorer = EpisodeScorer(detectors, policy, Demonstrations(roots, cfg.split, cfg.num_demos))
     per_detector: dict[str, list[np.ndarray]] = {d.name: [] for d in detectors}
     for ref in tqdm(refs, desc=f"score {cfg.policy} rollouts", disable=not cfg.progress):
         for name, s in scorer.score(ref).items():
@@ -189,7 +189,6 @@ def evaluate_policy(cfg: EvaluateConfig) -> dict[str, Any]:
     if cfg.labelled is not None:
         labelled_refs = [e for e in trajectory.scan_collection(Path(cfg.labelled)).episodes()
                          if e.role in ("agent_success", "agent_failure")]  # fmt: skip
-        scorer.demos.update(demonstrations_by_env(Path(cfg.labelled), cfg.split, cfg.num_demos))
         for ref in tqdm(labelled_refs, desc="score labelled episodes", disable=not cfg.progress):
             for name, s in scorer.score(ref).items():
                 labelled_scores[name].append(s)

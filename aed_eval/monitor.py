@@ -134,7 +134,7 @@ def monitor(
     import aed_tasks
     from aed_eval.calibrate import load_policy_checked, read_calibration
     from aed_eval.layout import RunLayout
-    from aed_eval.scoring import demonstrations_by_env, load_checked_detector
+    from aed_eval.scoring import Demonstrations, load_checked_detector
 
     task = aed_tasks.get_task(task).task_name
     layout = RunLayout(runs)
@@ -144,7 +144,7 @@ def monitor(
     if threshold is None:
         calibration = read_calibration(path, loaded.model.checkpoint_sha256)
         threshold = 0.9 if calibration is None else float(calibration["threshold"])
-    demos = demonstrations_by_env(layout.data(task, split), split, num_demos, [env_index])
+    demos = Demonstrations(layout.data(task, split), split, num_demos)
     if env_index not in demos:
         raise ValueError(f"env_index={env_index}: no {split} demonstrations in runs/{task}/data/{split}")
     env = AEDMonitor(gym.make(aed_tasks.env_id(task, split), env_index=env_index), policy_model, loaded.model,

@@ -30,6 +30,7 @@ import tyro
 from aed_eval.collect import episode_seed, plain_value, prepare_folder
 from aed_eval.executors import execute
 from aed_eval.layout import RunLayout
+from aed_eval.scoring import Demonstrations
 from aed_tasks import trajectory
 
 logger = logging.getLogger(__name__)
@@ -146,15 +147,6 @@ class RolloutShard:
         return asdict(self)
 
 
-def demonstrations(root: Path, split: str) -> dict[int, list[trajectory.EpisodeRef]]:
-    """The optimal demonstrations of every environment of a collection, in recorded order."""
-    by_env: dict[int, list[trajectory.EpisodeRef]] = {}
-    for ref in trajectory.scan_collection(root).episodes():
-        if ref.role == "demo" and not ref.suboptimal and ref.split == split:
-            by_env.setdefault(ref.env_index, []).append(ref)
-    return by_env
-
-
 def plan_shards(cfg: RolloutConfig, available: list[int]) -> list[RolloutShard]:
     if cfg.envs:
         missing = sorted(set(cfg.envs) - set(available))
@@ -194,22 +186,10 @@ class RolloutRunner:
         limit = {} if cfg.max_episode_steps is None else {"max_episode_steps": cfg.max_episode_steps}
         env = gym.make(aed_tasks.env_id(cfg.task, cfg.split), obs_mode="rgbd", **limit)
         self.env = trajectory.make_step_recorder(env, record_env_states=True)
-        self.demo_refs = demonstrations(Path(cfg.demos), cfg.split)
-        self._demos: dict[int, dict[str, Any]] = {}
+        self.demos = Demonstrations(Path(cfg.demos), cfg.split, cfg.num_demos)
 
     def close(self) -> None:
         self.env.close()
-
-    def demos(self, env_index: int) -> dict[str, Any]:
-        """The first `num_demos` demonstrations of an environment, padded (read once)."""
-        if env_index not in self._demos:
-            from aed_models.data import EpisodeReader, pad_sequences
-
-            reader = EpisodeReader()
-            refs = self.demo_refs[env_index][: self.cfg.num_demos]
-            self._demos[env_index] = pad_sequences([reader.read(ref) for ref in refs])
-            reader.close()
-        return self._demos[env_index]
 
     def run(self, shard: RolloutShard, tick: Callable[[int], None] | None = None) -> RolloutResult:
         start = time.perf_counter()
@@ -236,7 +216,7 @@ class RolloutRunner:
         seed = episode_seed(self.cfg.seed, shard.task, shard.split, shard.env_index, ROLE, k, 0)
         obs, _ = self.env.reset(seed=seed, options={"env_index": shard.env_index})
         with torch.no_grad():
-            self.policy.reset(self.demos(shard.env_index))
+            self.policy.reset(self.demos[shard.env_index])
             actions, success, fail, stage = [], [], [], []
             done = False
             while not done:
@@ -281,7 +261,7 @@ def run_rollouts(cfg: RolloutConfig) -> RolloutSummary:
     """Run every planned rollout shard that is not committed yet (resume = run again)."""
     from tqdm.auto import tqdm
 
-    available = sorted(demonstrations(Path(cfg.demos), cfg.split))
+    available = Demonstrations(Path(cfg.demos), cfg.split, cfg.num_demos).envs()
     if not available:
         raise FileNotFoundError(f"{cfg.demos}: no {cfg.split} demonstrations; collect them with "
                                 f"`aed collect --task {cfg.task} --split {cfg.split}`")  # fmt: skip

@@ -55,7 +55,7 @@ def load_checked_detector(path: Path, name: str, task: str, policy_sha256: str) 
 class EpisodeScorer:
     """Scores episodes with several detectors; frames read and policy features computed once."""
 
-    def __init__(self, detectors: Sequence[LoadedDetector], policy: Any, demos: dict[int, dict[str, Any]]):
+    def __init__(self, detectors: Sequence[LoadedDetector], policy: Any, demos: Demonstrations):
         from aed_models.data import EpisodeReader
 
         self.detectors = list(detectors)
@@ -84,17 +84,39 @@ class EpisodeScorer:
         }
 
 
-def demonstrations_by_env(root: Path, split: str, num_demos: int, env_indices: Sequence[int] | None = None) -> dict[int, dict[str, Any]]:
-    """The first `num_demos` optimal demonstrations of each environment, padded."""
-    from aed_models.data import EpisodeReader, pad_sequences
+class Demonstrations:
+    """The first `num_demos` optimal demonstrations of each environment of one or more
+    collections, read when first asked for and padded (`frames`, `mask`).
 
-    refs: dict[int, list[trajectory.EpisodeRef]] = {}
-    for ref in trajectory.scan_collection(root).episodes():
-        if ref.role == "demo" and not ref.suboptimal and ref.split == split:
-            if env_indices is None or ref.env_index in env_indices:
-                refs.setdefault(ref.env_index, []).append(ref)
-    reader = EpisodeReader()
-    try:
-        return {env: pad_sequences([reader.read(r) for r in group[:num_demos]]) for env, group in sorted(refs.items())}
-    finally:
-        reader.close()
+    Only the latest environment's frames are kept: as float tensors 5 demonstrations of about
+    100 frames take ~150 MB, so holding every novel environment's would take gigabytes, while
+    rollouts and episodes are read environment by environment.
+    """
+
+    def __init__(self, roots: Path | Sequence[Path], split: str, num_demos: int):
+        roots = [roots] if isinstance(roots, (str, Path)) else list(roots)
+        self.num_demos = num_demos
+        self.refs: dict[int, list[trajectory.EpisodeRef]] = {}
+        for root in roots:
+            for ref in trajectory.scan_collection(Path(root)).episodes():
+                if ref.role == "demo" and not ref.suboptimal and ref.split == split:
+                    self.refs.setdefault(ref.env_index, []).append(ref)
+        self._latest: tuple[int, dict[str, Any]] | None = None
+
+    def envs(self) -> list[int]:
+        return sorted(self.refs)
+
+    def __contains__(self, env_index: int) -> bool:
+        return env_index in self.refs
+
+    def __getitem__(self, env_index: int) -> dict[str, Any]:
+        from aed_models.data import EpisodeReader, pad_sequences
+
+        if self._latest is None or self._latest[0] != env_index:
+            reader = EpisodeReader()
+            try:
+                demos = pad_sequences([reader.read(r) for r in self.refs[env_index][: self.num_demos]])
+            finally:
+                reader.close()
+            self._latest = (env_index, demos)
+        return self._latest[1]
