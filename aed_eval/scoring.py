@@ -77,7 +77,7 @@ class EpisodeScorer:
         rollout = pad_sequences([self.reader.read(ref)])
         features = None
         if any(d.model.requires_policy for d in self.detectors):
-            features = self.policy.features(rollout["frames"], rollout["mask"], demos)
+            features = self.policy.features(rollout["frames"], rollout["mask"], demos, proprio=rollout.get("proprio"))
         return {
             d.name: d.model.score(rollout, demos, features if d.model.requires_policy else None)[0].cpu().numpy().astype(np.float64)
             for d in self.detectors

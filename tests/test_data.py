@@ -31,7 +31,8 @@ ONSET = 9
 
 
 def synthetic(role: str, env_index: int, seed: int, steps: int) -> tuple[Episode, trajectory.RecordedSteps]:
-    """An episode whose frame t has red = t, green = 100 + env_index, depth = 10 * t mm."""
+    """An episode whose frame t has red = t, green = 100 + env_index, depth = 10 * t mm, and
+    whose TCP x is t mm (fingers at 0.04 m)."""
     t = np.arange(steps + 1)
     rgb = np.zeros((steps + 1, H, W, 3), np.uint8)
     rgb[..., 0] = t[:, None, None]
@@ -48,7 +49,9 @@ def synthetic(role: str, env_index: int, seed: int, steps: int) -> tuple[Episode
         error_kind="no_grasp" if failure else None, error_onset=ONSET if failure else None,
     )  # fmt: skip
     steps_rec = trajectory.RecordedSteps(
-        obs={"sensor_data": {"front": {"rgb": rgb, "depth": depth}}}, env_states=None,
+        obs={"sensor_data": {"front": {"rgb": rgb, "depth": depth}},
+             "extra": {"tcp_pose": np.stack([t / 1000, 0 * t, 0 * t + 0.2, 1 + 0 * t, 0 * t, 0 * t, 0 * t], 1).astype(np.float32)},
+             "agent": {"qpos": np.tile(np.float32([0.0] * 7 + [0.04, 0.04]), (steps + 1, 1))}}, env_states=None,
         terminated=np.zeros(steps, bool), truncated=np.zeros(steps, bool), rewards=np.zeros(steps, np.float32),
         reset_kwargs={"seed": seed, "options": {"env_index": env_index}},
     )  # fmt: skip
@@ -91,6 +94,8 @@ def test_frames_labels_actions_align_and_pad(collection):
         expected = (source - 1 >= ONSET).float() if r["is_failure"][i] else torch.zeros(n)
         assert torch.equal(r["labels"][i, :n], expected)  # successes all 0; failures switch at onset + 1
         assert torch.equal(r["actions"][i, : n - 1, 0], source[: n - 1].float())
+        assert torch.equal(torch.round(r["proprio"][i, :n, 0] * 1000).long(), source)  # TCP x = t mm
+        assert torch.allclose(r["proprio"][i, :n, 3:], torch.tensor(0.04))  # finger joints
         assert r["mask"][i, :n].all() and not r["mask"][i, n:].any()
         assert (r["frames"][i, n:] == 0).all() and (r["labels"][i, n:] == 0).all()
 
@@ -103,6 +108,7 @@ def test_augmentation_keeps_alignment_and_skips_demos(collection):
     for i, n in enumerate(r["lengths"].tolist()):
         source = torch.round(r["frames"][i, :n, 0, 0, 0] * 255).long()
         changed += not torch.equal(source, torch.arange(n))
+        assert torch.equal(torch.round(r["proprio"][i, :n, 0] * 1000).long(), source)
         expected = (source - 1 >= ONSET).float() if r["is_failure"][i] else torch.zeros(n)
         assert torch.equal(r["labels"][i, :n], expected)
     assert changed > 10

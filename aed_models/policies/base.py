@@ -6,7 +6,8 @@ actor maps [f_h, f_zeta] to the action: a position delta (3) and a gripper comma
 
 Subclasses supply the task-embedding network through four hooks:
 
-- `encode_demos(demos) -> memory`: everything the task net needs from the demonstrations;
+- `encode_demos(frames, mask, proprio) -> memory`: everything the task net needs from the
+  demonstrations (per-frame features come from `embed`);
 - `sequence(f, mask, memory) -> (history, task)`: batched and causal over the rollout;
 - `init_state(memory)` and `step(f_t, memory, state) -> (history_t, task_t, state)`: the
   same computation one frame at a time, with per-frame results cached in `state`.
@@ -27,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from aed_models.data import to_frames
+from aed_models.data import PROPRIO_DIM, proprio_from_obs, to_frames
 from aed_models.nn.encoders import build_visual_head, encode_frames
 from aed_models.policies.configuration_base import PolicyConfig
 
@@ -83,6 +84,33 @@ def check_sequences(batch: Any, what: str) -> tuple[torch.Tensor, torch.Tensor]:
     return frames, mask
 
 
+def thin_sequences(frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None, limit: int):
+    """At most `limit` frames of each padded sequence, evenly spread, its first and last kept."""
+    lengths = mask.sum(1)
+    if limit == 0 or int(lengths.max()) <= limit:
+        return frames, mask, proprio
+    keep = lengths.clamp(max=limit)
+    j = torch.arange(limit, device=mask.device)
+    new_mask = j[None] < keep[:, None]
+    idx = torch.round(j[None] * (lengths - 1)[:, None] / (keep - 1).clamp_min(1)[:, None]).long()
+    idx = torch.where(new_mask, idx, 0)
+    rows = torch.arange(len(mask), device=mask.device)[:, None]
+    proprio = None if proprio is None else proprio[rows, idx] * new_mask[..., None]
+    return frames[rows, idx] * new_mask[..., None, None, None], new_mask, proprio
+
+
+def check_proprio(batch: dict, what: str, needed: bool) -> torch.Tensor | None:
+    """The group's proprio (B, L, PROPRIO_DIM) when the policy reads it, else None."""
+    if not needed:
+        return None
+    proprio = batch.get("proprio")
+    shape = (*batch["frames"].shape[:2], PROPRIO_DIM)
+    if proprio is None or tuple(proprio.shape) != shape:
+        got = "none" if proprio is None else tuple(proprio.shape)
+        raise ValueError(f"{what}['proprio']: this policy reads proprioception (config.proprio); expected {shape}, got {got}")
+    return proprio.float()
+
+
 class DCPolicy(nn.Module):
     """Visual head + task-embedding network + actor. See the module docstring for the hooks.
 
@@ -100,6 +128,7 @@ class DCPolicy(nn.Module):
         self.history_dim, self.task_dim = history_dim, task_dim
         self.visual = build_visual_head(config.visual)
         self.actor = Actor(history_dim + task_dim, config.actor_hidden)
+        self.proprio_embed = nn.Linear(PROPRIO_DIM, config.visual.out_dim) if config.proprio else None
         self.inverse_dynamics = None
         if config.inverse_dynamics:
             d = config.visual.out_dim
@@ -108,8 +137,18 @@ class DCPolicy(nn.Module):
         self.register_buffer("action_std", torch.ones(ACTION_DIM))
         self._online: dict[str, Any] | None = None
 
+    def embed(self, frames: torch.Tensor, mask: torch.Tensor | None = None, proprio: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-frame features: frames (B, L, 4, H, W) or (B, 4, H, W) -> (B, L, out_dim) or
+        (B, out_dim), the visual head's plus the embedded proprioception."""
+        f = self.visual(frames) if frames.dim() == 4 else encode_frames(self.visual, frames, mask)
+        if self.proprio_embed is not None:
+            if proprio is None:
+                raise ValueError("this policy reads proprioception (config.proprio) but none was given")
+            f = f + self.proprio_embed(proprio.to(f.dtype))
+        return f
+
     # -- task-embedding hooks ------------------------------------------------------------
-    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor) -> Any:
+    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None) -> Any:
         raise NotImplementedError
 
     def sequence(self, f: torch.Tensor, mask: torch.Tensor, memory: Any) -> tuple[torch.Tensor, torch.Tensor]:
@@ -130,15 +169,22 @@ class DCPolicy(nn.Module):
         self.action_mean.copy_(actions.mean(0))
         self.action_std.copy_(actions.std(0).clamp_min(1e-3))
 
-    def _features(self, frames: torch.Tensor, mask: torch.Tensor, demos: dict) -> tuple[torch.Tensor, PolicyFeatures]:
-        demo_frames, demo_mask = check_sequences(demos, "demos")
-        memory = self.encode_demos(demo_frames, demo_mask)
-        f = encode_frames(self.visual, frames, mask)
+    def _features(self, rollouts: dict, demos: dict) -> tuple[torch.Tensor, PolicyFeatures]:
+        memory = self.encode_demos(*self.demo_inputs(demos))
+        frames, mask = check_sequences(rollouts, "rollouts")
+        f = self.embed(frames, mask, check_proprio(rollouts, "rollouts", self.config.proprio))
         history, task = self.sequence(f, mask, memory)
         return f, PolicyFeatures(history, task)
 
-    def features(self, frames: torch.Tensor | None = None, mask: torch.Tensor | None = None, demos: dict | None = None):
-        """Batched: `features(frames (B, T, 4, H, W), mask (B, T), demos)` -> PolicyFeatures.
+    def demo_inputs(self, demos: dict) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """The demonstrations' frames, mask and proprio (or None), thinned to `config.demo_frames`."""
+        frames, mask = check_sequences(demos, "demos")
+        return thin_sequences(frames, mask, check_proprio(demos, "demos", self.config.proprio), self.config.demo_frames)
+
+    def features(self, frames: torch.Tensor | None = None, mask: torch.Tensor | None = None, demos: dict | None = None,
+                 proprio: torch.Tensor | None = None):  # fmt: skip
+        """Batched: `features(frames (B, T, 4, H, W), mask (B, T), demos, proprio (B, T, 5))`
+        -> PolicyFeatures (`proprio` only for a policy that reads it).
 
         Online (no arguments): `(f_h (history_dim,), f_zeta (task_dim,))` of the latest `act`.
         """
@@ -148,14 +194,13 @@ class DCPolicy(nn.Module):
             return self._online["history"], self._online["task"]
         if demos is None:
             raise ValueError("features(frames, mask, demos): demos missing")
-        frames, mask = check_sequences({"frames": frames, "mask": mask}, "rollouts")
-        return self._features(frames, mask, demos)[1]
+        rollouts = {"frames": frames, "mask": mask} if proprio is None else {"frames": frames, "mask": mask, "proprio": proprio}
+        return self._features(rollouts, demos)[1]
 
     def forward(self, rollouts: dict, demos: dict) -> dict[str, torch.Tensor]:
         """rollouts (B, T, ...) conditioned on the N demos they share -> standardised pos (B, T, 3),
-        gripper logit (B, T, 1), history / task features and the visual features."""
-        frames, mask = check_sequences(rollouts, "rollouts")
-        f, feats = self._features(frames, mask, demos)
+        gripper logit (B, T, 1), history / task features and the per-frame features."""
+        f, feats = self._features(rollouts, demos)
         pos, grip = self.actor(torch.cat([feats.history, feats.task], dim=-1))
         return {"pos": pos, "grip": grip, "history": feats.history, "task": feats.task, "visual": f}
 
@@ -215,19 +260,25 @@ class DCPolicy(nn.Module):
     def reset(self, demos: dict) -> None:
         """Encode the demonstrations once for a new rollout; switches to eval mode."""
         self.eval()
-        frames, mask = check_sequences(demos, "demos")
         device = self.action_mean.device
         with torch.inference_mode():
-            memory = self.encode_demos(frames.to(device), mask.to(device))
+            memory = self.encode_demos(*(None if x is None else x.to(device) for x in self.demo_inputs(demos)))
             self._online = {"memory": memory, "state": self.init_state(memory), "t": 0, "history": None, "task": None}
 
-    def act(self, obs: Any) -> np.ndarray:
-        """One step: a ManiSkill rgbd observation dict or a (4, H, W) frame -> action (4,) float32."""
+    def act(self, obs: Any, proprio: Any = None) -> np.ndarray:
+        """One step: a ManiSkill rgbd observation dict, or a (4, H, W) frame (plus its (5,)
+        `proprio` for a policy that reads it) -> action (4,) float32."""
         if self._online is None:
             raise RuntimeError("act(): call reset(demos) first")
-        frame = self.observation_frame(obs).to(self.action_mean.device)
+        device = self.action_mean.device
+        frame = self.observation_frame(obs).to(device)
+        if self.config.proprio:
+            proprio = torch.as_tensor(self.observation_proprio(obs) if proprio is None else proprio, dtype=torch.float32)
+            if proprio.shape != (PROPRIO_DIM,):
+                raise ValueError(f"proprio of shape {tuple(proprio.shape)}: expected ({PROPRIO_DIM},)")
+            proprio = proprio[None].to(device)
         with torch.inference_mode():
-            f_t = self.visual(frame[None])
+            f_t = self.embed(frame[None], proprio=proprio)
             history, task, self._online["state"] = self.step(f_t, self._online["memory"], self._online["state"])
             pos, grip = self.actor(torch.cat([history, task], dim=-1))
             action = self.to_action(pos, grip)[0]
@@ -248,6 +299,17 @@ class DCPolicy(nn.Module):
         if rgb.ndim == 3:
             rgb, depth = rgb[None], depth[None]
         return to_frames(rgb[:1], depth[:1])[0]
+
+    @staticmethod
+    def observation_proprio(obs: Any) -> np.ndarray:
+        """(5,) TCP position and finger joints of a ManiSkill observation dict (first env)."""
+        try:
+            tcp_pose, qpos = obs["extra"]["tcp_pose"], obs["agent"]["qpos"]
+        except (KeyError, TypeError, IndexError) as e:
+            raise ValueError("observation: this policy reads proprioception; expected an observation dict "
+                             "with extra/tcp_pose and agent/qpos (or pass act(frame, proprio=...))") from e  # fmt: skip
+        proprio = proprio_from_obs(tcp_pose, qpos)
+        return proprio.reshape(-1, proprio.shape[-1])[0]
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())

@@ -21,6 +21,13 @@ class PolicyConfig:
             (the paper's optional module; an auxiliary loss only).
         inverse_dynamics_weight: weight of that loss.
         grip_loss: `bce` on open (+1) / closed (-1), or `mse` on the standardised value.
+        proprio: also read the TCP position and finger joints (`aed_models.data.PROPRIO_DIM`),
+            embedded linearly and added to every frame's visual feature. The paper's policies
+            read RGB-D only (off under `paper`); from-scratch CNNs on a CPU budget learn where
+            the gripper is too slowly without it (on under `mini`).
+        demo_frames: encode at most this many frames of each demonstration, evenly spread
+            (first and last kept), in training and online alike; 0 = every frame. It bounds the
+            cost of DCT's and SCAN's demonstration memory (NaiveDC reads only the ends).
     """
 
     name: ClassVar[str] = ""
@@ -30,6 +37,8 @@ class PolicyConfig:
     inverse_dynamics: bool = False
     inverse_dynamics_weight: float = 1.0
     grip_loss: Literal["bce", "mse"] = "bce"
+    proprio: bool = False
+    demo_frames: int = 0
 
     def __post_init__(self) -> None:
         if isinstance(self.visual, dict):
@@ -41,6 +50,8 @@ class PolicyConfig:
             raise ValueError(f"actor_hidden={self.actor_hidden}: needs at least one size, all >= 1")
         if self.inverse_dynamics_weight < 0:
             raise ValueError(f"inverse_dynamics_weight={self.inverse_dynamics_weight}: must be >= 0")
+        if self.demo_frames < 0 or self.demo_frames == 1:
+            raise ValueError(f"demo_frames={self.demo_frames}: 0 (all) or >= 2")
         if self.grip_loss not in ("bce", "mse"):
             raise ValueError(f"grip_loss={self.grip_loss!r}: bce or mse")
 

@@ -35,14 +35,15 @@ from tqdm import tqdm
 
 from aed_models.augment import RolloutAugment
 from aed_models.checkpoint import file_sha256, load_checkpoint, save_checkpoint
-from aed_models.data import EnvironmentIterations, EnvironmentSampler, load_episodes
+from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampler, load_episodes
 from aed_models.detectors import DETECTORS, FAMILY, detector_config, make_detector
 from aed_models.train.feature_cache import FeatureCache, FeatureIterations
 from aed_models.train.policy import PAPER_EPOCHS, seed_everything, select_environments
 
 logger = logging.getLogger(__name__)
 
-MINI = {"epochs": 20, "num_envs": 10}
+MINI = {"epochs": 20, "num_envs": 10, "lr": 3e-4, "weight_decay": 0.0}  # as the policies' (see there)
+PAPER = {"lr": 1e-4, "weight_decay": 1e-2}
 # Single-frame detectors lose nothing by seeing fewer frames per episode; temporal ones see
 # every frame, so that they meet online the frame rate they were trained at.
 MINI_MAX_FRAMES = {"svdd_ed": 32, "taskemb_ed": 32}
@@ -64,9 +65,12 @@ class TrainDetectorConfig:
         num_envs: use the first N base environments (default: mini 10; paper all).
         max_frames: frames per episode per iteration, evenly spread; 0 = all (default: mini
             32 for the single-frame svdd_ed / taskemb_ed, else all).
+        composition: demonstrations, successes, failures per iteration (default: the paper's
+            5, 10, 10); detectors trained on successes only take successes in the failures'
+            place (5 + 20).
         augment: rollout augmentation (paper: on; off for the ablation).
-        lr: RMSprop learning rate.
-        weight_decay: L2 weight.
+        lr: RMSprop learning rate (default: paper 1e-4; mini 3e-4).
+        weight_decay: L2 weight (default: paper 1e-2; mini 0, as the mini policies).
         seed: seeds the model, the draws and the augmentation.
         resume: continue from <out>/last.pt when it exists.
         progress: show progress bars.
@@ -83,9 +87,10 @@ class TrainDetectorConfig:
     epochs: int | None = None
     num_envs: int | None = None
     max_frames: int | None = None
+    composition: tuple[int, int, int] | None = None
     augment: bool = True
-    lr: float = 1e-4
-    weight_decay: float = 1e-2
+    lr: float | None = None
+    weight_decay: float | None = None
     seed: int = 0
     resume: bool = True
     progress: bool = True
@@ -108,6 +113,13 @@ class TrainDetectorConfig:
             self.num_envs = MINI["num_envs"]
         if self.max_frames is None:
             self.max_frames = MINI_MAX_FRAMES.get(self.detector, 0) if self.profile == "mini" else 0
+        for name in ("lr", "weight_decay"):
+            if getattr(self, name) is None:
+                setattr(self, name, (MINI if self.profile == "mini" else PAPER)[name])
+        if self.composition is not None:
+            self.composition = tuple(int(n) for n in self.composition)
+            if len(self.composition) != 3 or min(self.composition) < 0 or self.composition[0] < 1:
+                raise ValueError(f"composition={self.composition}: (demos >= 1, successes >= 0, failures >= 0)")
         for name in ("epochs", "num_envs"):
             value = getattr(self, name)
             if value is not None and value < 1:
@@ -119,8 +131,10 @@ class TrainDetectorConfig:
         runs = Path("runs") / self.task
         self.data = Path(self.data) if self.data is not None else runs / "data" / "base"
         if self.out is None:
-            label = Path(self.policy).parent.name if Path(self.policy).suffix else Path(self.policy).name
-            suffix = f"-{label}" if needs_policy else ""
+            suffix = ""
+            if needs_policy:
+                label = Path(self.policy).parent.name if Path(self.policy).suffix else Path(self.policy).name
+                suffix = f"-{label}"
             self.out = runs / "detectors" / f"{self.detector}{suffix}"
         self.out = Path(self.out)
 
@@ -151,7 +165,11 @@ def load_frozen_policy(cfg: TrainDetectorConfig) -> tuple[Any, str, str]:
 def build_dataset(cfg: TrainDetectorConfig, detector_name: str, episodes: list, policy: Any, policy_sha: str) -> Any:
     """Frame iterations for the visual baselines, cached-feature iterations for the others."""
     model_type = DETECTORS[detector_name].model_type()
-    composition = "svdd" if model_type.trains_on == "successes" else "detector"
+    composition: Composition | str = "svdd" if model_type.trains_on == "successes" else "detector"
+    if cfg.composition is not None:
+        demos, successes, failures = cfg.composition
+        only_successes = model_type.trains_on == "successes"
+        composition = Composition(demos, successes + failures, 0) if only_successes else Composition(demos, successes, failures)
     augment = RolloutAugment(enabled=cfg.augment)
     max_frames = cfg.max_frames or None
     if not model_type.requires_policy:

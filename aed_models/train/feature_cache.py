@@ -187,7 +187,8 @@ class FeatureCache:
                     seq = reader.read(ref)
                     mask = torch.ones(1, len(seq), dtype=torch.bool, device=device)
                     with torch.no_grad():
-                        feats = policy.features(seq.frames[None].to(device), mask, demos)
+                        proprio = None if seq.proprio is None else seq.proprio[None].to(device)
+                        feats = policy.features(seq.frames[None].to(device), mask, demos, proprio=proprio)
                     arrays[f"{ref.traj}/history"] = feats.history[0].float().cpu().numpy()
                     arrays[f"{ref.traj}/task"] = feats.task[0].float().cpu().numpy()
                     arrays[f"{ref.traj}/labels"] = seq.labels.float().numpy()
@@ -209,7 +210,8 @@ class FeatureCache:
             raise FeatureCacheError(f"environment {env_index} has no optimal demonstration to condition the policy on")
         refs = _draw(pool, num_demos, np.random.default_rng([seed, env_index]))
         padded = pad_sequences([reader.read(r) for r in refs])
-        return {"frames": padded["frames"].to(device), "mask": padded["mask"].to(device)}, [f"{r.path.name}/{r.traj}" for r in refs]
+        demos = {k: padded[k].to(device) for k in ("frames", "mask", "proprio") if k in padded}
+        return demos, [f"{r.path.name}/{r.traj}" for r in refs]
 
 
 def _by_shard(refs: Sequence[trajectory.EpisodeRef]) -> dict[Path, list[trajectory.EpisodeRef]]:

@@ -40,7 +40,7 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from aed_models.checkpoint import load_checkpoint, save_checkpoint
-from aed_models.data import EnvironmentIterations, EnvironmentSampler, load_episodes
+from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampler, load_episodes
 from aed_models.policies import FAMILY, POLICIES, PolicyConfig, make_policy, policy_config
 
 logger = logging.getLogger(__name__)
@@ -51,6 +51,7 @@ PAPER_EPOCHS = {"CloseDrawer": 160, "PressButton": 40, "PickPlace": 50, "MoveGla
 MINI = {"epochs": 20, "num_envs": 10, "shift": 4, "lr": 3e-4, "weight_decay": 0.0}
 PAPER = {"lr": 1e-4, "weight_decay": 1e-2}
 MINI_MAX_FRAMES = {"naive_dc": 32}  # others: every frame (see the module docstring)
+MINI_ROLLOUT_FRAMES = {"naive_dc": "random"}
 
 
 @dataclass
@@ -67,6 +68,9 @@ class TrainPolicyConfig:
         num_envs: use the first N base environments (default: mini 10; paper all).
         max_frames: frames per episode per iteration, evenly spread; 0 = all (default:
             mini 32 for naive_dc, else all).
+        composition: demonstrations and agent successes per iteration (default: the paper's 5, 10).
+        rollout_frames: how `max_frames` picks rollout frames: even, or a fresh random subset
+            per draw (default: mini random for naive_dc, else even).
         shift: random-shift augmentation in pixels, per sequence (default: mini 4; paper 0).
         lr: RMSprop learning rate (default: paper 1e-4; mini 3e-4).
         weight_decay: L2 weight (default: paper 1e-2; mini 0: see the module docstring).
@@ -85,6 +89,8 @@ class TrainPolicyConfig:
     epochs: int | None = None
     num_envs: int | None = None
     max_frames: int | None = None
+    rollout_frames: Literal["even", "random"] | None = None
+    composition: tuple[int, int] | None = None
     shift: int | None = None
     lr: float | None = None
     weight_decay: float | None = None
@@ -107,6 +113,12 @@ class TrainPolicyConfig:
             self.num_envs = MINI["num_envs"]
         if self.max_frames is None:
             self.max_frames = MINI_MAX_FRAMES.get(self.policy, 0) if self.profile == "mini" else 0
+        if self.composition is not None:
+            self.composition = tuple(int(n) for n in self.composition)
+            if len(self.composition) != 2 or min(self.composition) < 1:
+                raise ValueError(f"composition={self.composition}: (demos >= 1, successes >= 1)")
+        if self.rollout_frames is None:
+            self.rollout_frames = MINI_ROLLOUT_FRAMES.get(self.policy, "even") if self.profile == "mini" else "even"
         if self.shift is None:
             self.shift = MINI["shift"] if self.profile == "mini" else 0
         for name in ("lr", "weight_decay"):
@@ -189,7 +201,9 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
 
     # data
     episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
-    dataset = EnvironmentIterations(episodes, "policy", max_frames=cfg.max_frames or None, seed=cfg.seed)
+    composition = Composition(*cfg.composition) if cfg.composition else "policy"
+    dataset = EnvironmentIterations(episodes, composition, max_frames=cfg.max_frames or None, seed=cfg.seed,
+                                    rollout_frames=cfg.rollout_frames)  # fmt: skip
     logger.info("%s on %s: %d environments, %d episodes", cfg.policy, cfg.data, len(dataset), len(episodes))
 
     # model and optimiser

@@ -219,6 +219,20 @@ def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
         TrainDetectorConfig(detector="probe")
 
 
+def test_train_detector_config_profiles_and_composition(collection):
+    from aed_models.data import Composition, load_episodes
+    from aed_models.train.detector import TrainDetectorConfig, build_dataset
+
+    mini, paper = TrainDetectorConfig(detector="lstm_ed"), TrainDetectorConfig(detector="lstm_ed", profile="paper")
+    assert (mini.lr, mini.weight_decay, paper.lr, paper.weight_decay) == (3e-4, 0.0, 1e-4, 1e-2)
+    episodes = load_episodes(collection)
+    for name, expected in (("lstm_ed", Composition(2, 3, 1)), ("svdd_ed", Composition(2, 4, 0))):
+        cfg = TrainDetectorConfig(detector=name, data=collection, composition=(2, 3, 1))
+        assert build_dataset(cfg, name, episodes, None, "").composition == expected
+    with pytest.raises(ValueError, match="composition"):
+        TrainDetectorConfig(detector="lstm_ed", composition=(0, 3, 1))
+
+
 def test_probe_trains_on_cached_features(collection, tiny_policy, tmp_path):
     from aed_models.checkpoint import file_sha256
     from aed_models.train.detector import TrainDetectorConfig, train_detector

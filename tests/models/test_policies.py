@@ -20,8 +20,8 @@ from aed_tasks.episode import Episode
 H, W = 32, 40
 TINY = {
     "naive_dc": {},
-    "dct": {"num_heads": 4, "ff_dim": 32},
-    "scan": {"lstm_hidden": 12, "attention_dim": 8},
+    "dct": {"num_heads": 4, "ff_dim": 32, "demo_frames": 6},  # demos of 9, 5, 7 frames: thinned
+    "scan": {"lstm_hidden": 12, "attention_dim": 8, "demo_frames": 6},
 }
 
 
@@ -42,7 +42,8 @@ def sequences(n: int, lengths: list[int], seed: int) -> dict[str, torch.Tensor]:
     mask = torch.arange(longest)[None] < torch.tensor(lengths)[:, None]
     frames[~mask] = 0.0
     return {"frames": frames, "mask": mask, "lengths": torch.tensor(lengths),
-            "actions": torch.randn(n, longest, 4, generator=g).clamp(-1, 1)}  # fmt: skip
+            "actions": torch.randn(n, longest, 4, generator=g).clamp(-1, 1),
+            "proprio": torch.rand(n, longest, 5, generator=g) * mask[..., None]}  # fmt: skip
 
 
 @pytest.fixture
@@ -95,14 +96,14 @@ def test_online_features_equal_batched(name, batch):
     policy = tiny_policy(name)
     policy.set_action_stats(torch.randn(50, 4) * 0.2)
     policy.eval()
-    rollout = batch["rollouts"]["frames"][:1]
+    rollout, proprio = batch["rollouts"]["frames"][:1], batch["rollouts"]["proprio"][:1]
     with torch.no_grad():
-        feats = policy.features(rollout, torch.ones(1, 12, dtype=torch.bool), batch["demos"])
-        out = policy({"frames": rollout}, batch["demos"])
+        feats = policy.features(rollout, torch.ones(1, 12, dtype=torch.bool), batch["demos"], proprio=proprio)
+        out = policy({"frames": rollout, "proprio": proprio}, batch["demos"])
     expected = policy.to_action(out["pos"], out["grip"])[0]
     policy.reset(batch["demos"])
     for t in range(12):
-        action = policy.act(rollout[0, t])
+        action = policy.act(rollout[0, t], proprio=proprio[0, t])
         history, task = policy.features()
         assert action.shape == (4,) and action.dtype == np.float32
         assert np.all(np.abs(action) <= 1) and action[3] in (-1.0, 1.0)
@@ -116,13 +117,22 @@ def test_act_reads_maniskill_observations():
     rgb = torch.randint(0, 256, (1, H, W, 3), dtype=torch.uint8)
     depth = torch.randint(0, 5000, (1, H, W, 1), dtype=torch.int16)
     frame = torch.cat([rgb[0].permute(2, 0, 1) / 255.0, depth[0].permute(2, 0, 1) / 5000.0])
+    tcp_pose, qpos = torch.rand(1, 7), torch.rand(1, 9)
+    proprio = torch.cat([tcp_pose[0, :3], qpos[0, -2:]])
     demos = sequences(2, [5, 4], seed=0)
     policy.reset(demos)
-    a = policy.act({"sensor_data": {"front": {"rgb": rgb, "depth": depth}}})
+    a = policy.act({"sensor_data": {"front": {"rgb": rgb, "depth": depth}}, "extra": {"tcp_pose": tcp_pose}, "agent": {"qpos": qpos}})
     policy.reset(demos)
-    assert np.allclose(a, policy.act(frame), atol=1e-5)
+    assert np.allclose(a, policy.act(frame, proprio=proprio), atol=1e-5)
     with pytest.raises(ValueError, match="sensor_data/front"):
         policy.act({"state": torch.zeros(3)})
+    with pytest.raises(ValueError, match="extra/tcp_pose"):
+        policy.act({"sensor_data": {"front": {"rgb": rgb, "depth": depth}}})
+    with pytest.raises(ValueError, match="proprioception"):
+        policy.features(frame[None, None], None, {k: v for k, v in demos.items() if k != "proprio"})
+    blind = make_policy("scan", tiny_config("scan"), proprio=False)
+    blind.reset({k: v for k, v in demos.items() if k != "proprio"})
+    assert blind.act(frame).shape == (4,)
     fresh = tiny_policy("scan")
     with pytest.raises(RuntimeError, match="reset"):
         fresh.act(frame)
@@ -135,16 +145,19 @@ def test_padded_demos_give_the_same_task_embedding(name):
     rollout = sequences(1, [6], seed=5)
     one_by_one = []
     with torch.no_grad():
-        padded = policy.features(rollout["frames"], rollout["mask"], demos).task
+        args = rollout["frames"], rollout["mask"]
+        padded = policy.features(*args, demos, proprio=rollout["proprio"]).task
         # the same demos padded further, with junk in the padding
         longer = {"frames": torch.cat([demos["frames"], torch.rand(3, 4, 4, H, W)], dim=1),
-                  "mask": torch.cat([demos["mask"], torch.zeros(3, 4, dtype=torch.bool)], dim=1)}  # fmt: skip
+                  "mask": torch.cat([demos["mask"], torch.zeros(3, 4, dtype=torch.bool)], dim=1),
+                  "proprio": torch.cat([demos["proprio"], torch.rand(3, 4, 5)], dim=1)}  # fmt: skip
         longer["frames"][:, :9][~demos["mask"]] = torch.rand(int((~demos["mask"]).sum()), 4, H, W)
-        assert torch.allclose(policy.features(rollout["frames"], rollout["mask"], longer).task, padded, atol=1e-5)
+        longer["proprio"][:, :9][~demos["mask"]] = torch.rand(int((~demos["mask"]).sum()), 5)
+        assert torch.allclose(policy.features(*args, longer, proprio=rollout["proprio"]).task, padded, atol=1e-5)
         if name == "naive_dc":  # the mean over demos of per-demo embeddings: check each unpadded
             for i, n in enumerate([9, 5, 7]):
-                one = {"frames": demos["frames"][i : i + 1, :n]}
-                one_by_one.append(policy.features(rollout["frames"], rollout["mask"], one).task)
+                one = {"frames": demos["frames"][i : i + 1, :n], "proprio": demos["proprio"][i : i + 1, :n]}
+                one_by_one.append(policy.features(*args, one, proprio=rollout["proprio"]).task)
             assert torch.allclose(torch.stack(one_by_one).mean(0), padded, atol=1e-5)
 
 
@@ -202,7 +215,9 @@ def synthetic(role: str, env_index: int, seed: int, steps: int) -> tuple[Episode
         error_label=np.zeros(steps, np.uint8), error_kind=None, error_onset=None,
     )  # fmt: skip
     steps_rec = trajectory.RecordedSteps(
-        obs={"sensor_data": {"front": {"rgb": rgb, "depth": depth}}}, env_states=None,
+        obs={"sensor_data": {"front": {"rgb": rgb, "depth": depth}},
+             "extra": {"tcp_pose": np.tile(np.float32([0.1, 0.0, 0.2, 1, 0, 0, 0]), (steps + 1, 1))},
+             "agent": {"qpos": np.tile(np.float32([0.0] * 7 + [0.04, 0.04]), (steps + 1, 1))}}, env_states=None,
         terminated=np.zeros(steps, bool), truncated=np.zeros(steps, bool), rewards=np.zeros(steps, np.float32),
         reset_kwargs={"seed": seed, "options": {"env_index": env_index}},
     )  # fmt: skip
@@ -270,6 +285,13 @@ def test_train_config_defaults_and_errors():
     assert TrainPolicyConfig(task="CloseDrawer", profile="paper").epochs == 160
     paper = TrainPolicyConfig(profile="paper")
     assert (paper.lr, paper.weight_decay, paper.shift, paper.max_frames) == (1e-4, 1e-2, 0, 0)
+    assert (mini.rollout_frames, TrainPolicyConfig(policy="naive_dc").rollout_frames, paper.rollout_frames) == ("even", "random", "even")
+    assert policy_config("scan", "mini").proprio and not policy_config("scan", "paper").proprio
+    assert TrainPolicyConfig(composition=[3, 4]).composition == (3, 4)
+    with pytest.raises(ValueError, match="composition"):
+        TrainPolicyConfig(composition=(3, 0))
+    with pytest.raises(ValueError, match="demo_frames=1"):
+        policy_config("dct", "mini", demo_frames=1)
     with pytest.raises(ValueError, match="policy='bc'"):
         TrainPolicyConfig(policy="bc")
     with pytest.raises(ValueError, match="max_frames=1"):

@@ -18,7 +18,6 @@ import torch
 from torch import nn
 
 from aed_models.nn.attention import DecoderLayer, EncoderLayer, KVCache, progress_encoding
-from aed_models.nn.encoders import encode_frames
 from aed_models.policies.base import DCPolicy
 from aed_models.policies.dct.configuration_dct import DCTConfig
 
@@ -39,9 +38,9 @@ class DCTPolicy(DCPolicy):
         self.encoder = nn.ModuleList(EncoderLayer(*args) for _ in range(config.encoder_layers))
         self.decoder = nn.ModuleList(DecoderLayer(*args) for _ in range(config.decoder_layers))
 
-    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor) -> DemoMemory:
+    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None) -> DemoMemory:
         n, length = mask.shape
-        f = encode_frames(self.visual, frames, mask)
+        f = self.embed(frames, mask, proprio)
         steps = torch.arange(length, device=f.device, dtype=f.dtype)
         progress = steps[None] / (mask.sum(1, keepdim=True) - 1).clamp_min(1).to(f.dtype)
         x = (f + progress_encoding(progress, f.shape[-1])).reshape(1, n * length, -1)

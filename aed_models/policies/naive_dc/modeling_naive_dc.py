@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import torch
 
-from aed_models.nn.encoders import encode_frames
 from aed_models.policies.base import DCPolicy
 from aed_models.policies.naive_dc.configuration_naive_dc import NaiveDCConfig
 
@@ -18,11 +17,13 @@ class NaiveDCPolicy(DCPolicy):
         d = config.visual.out_dim
         super().__init__(config, history_dim=d, task_dim=2 * d)
 
-    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None) -> torch.Tensor:
         lengths = mask.sum(1)
         rows = torch.arange(len(frames), device=frames.device)
         ends = torch.stack([frames[:, 0], frames[rows, lengths - 1]], dim=1)  # only 2 frames per demo
-        f = encode_frames(self.visual, ends)
+        if proprio is not None:
+            proprio = torch.stack([proprio[:, 0], proprio[rows, lengths - 1]], dim=1)
+        f = self.embed(ends, proprio=proprio)
         return f.flatten(1).mean(0)  # (2 d,)
 
     def sequence(self, f: torch.Tensor, mask: torch.Tensor, memory: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from aed_models.nn.encoders import encode_frames
 from aed_models.policies.base import DCPolicy
 from aed_models.policies.scan.configuration_scan import SCANConfig
 
@@ -39,8 +38,8 @@ class SCANPolicy(DCPolicy):
         self.value = nn.Linear(d, d)
         self.scale = 1.0 / math.sqrt(config.attention_dim)
 
-    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor) -> DemoMemory:
-        f = encode_frames(self.visual, frames, mask)
+    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None) -> DemoMemory:
+        f = self.embed(frames, mask, proprio)
         return DemoMemory(self.key(f), self.value(f), mask)
 
     def attend(self, history: torch.Tensor, memory: DemoMemory) -> torch.Tensor:
