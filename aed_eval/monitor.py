@@ -76,7 +76,9 @@ class AEDMonitor(gym.Wrapper):
 
     def _watch(self, obs: Any) -> dict[str, Any]:
         """Policy action for `obs` and the detector's score of its frame."""
+        start = time.perf_counter()
         action = self.policy.act(obs)
+        policy_latency = time.perf_counter() - start
         start = time.perf_counter()
         features = self.policy.features() if self.detector.requires_policy else None
         frame = None if self.detector.requires_policy else self.policy.observation_frame(obs)
@@ -86,7 +88,7 @@ class AEDMonitor(gym.Wrapper):
         self.next_action = action
         self.scores.append(score)
         alarm = score >= self.threshold
-        return {"aed_score": score, "aed_alarm": alarm, "aed_latency_s": latency}
+        return {"aed_score": score, "aed_alarm": alarm, "aed_latency_s": latency, "aed_policy_latency_s": policy_latency}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
@@ -98,7 +100,9 @@ class AEDMonitor(gym.Wrapper):
 
     def step(self, action: Any = None):
         action = self.next_action if action is None else action
+        start = time.perf_counter()
         obs, reward, terminated, truncated, info = self.env.step(action)
+        info["aed_env_step_s"] = time.perf_counter() - start
         info.update(self._watch(obs))
         if info["aed_alarm"]:
             self.alarms += 1
@@ -150,18 +154,22 @@ def monitor(
     env = AEDMonitor(gym.make(aed_tasks.env_id(task, split), env_index=env_index), policy_model, loaded.model,
                      demos[env_index], threshold, on_alarm)  # fmt: skip
     obs, info = env.reset(seed=seed)
-    frames, latencies, done = [_rgb(obs)], [info["aed_latency_s"]], False
+    frames, latencies, policy_latencies, env_steps, done = [_rgb(obs)], [info["aed_latency_s"]], [], [], False
     while not done:
         obs, _, terminated, truncated, info = env.step(None)
         frames.append(_rgb(obs))
         latencies.append(info["aed_latency_s"])
+        policy_latencies.append(info["aed_policy_latency_s"])
+        env_steps.append(info["aed_env_step_s"])
         done = bool(np.asarray(terminated).any() or np.asarray(truncated).any())
     env.close()
     out = Path(out or Path(runs) / task / policy / "monitor" / f"{detector}_env{env_index:03d}.mp4")
     write_video(out, frames, env.scores, threshold)
     success = bool(np.asarray(info["success"]).any())
     print(f"{out}: {len(frames)} frames, success={success}, alarms={env.alarms}, threshold {threshold:.3g}, "
-          f"detector step median {1e3 * np.median(latencies):.2f} ms")  # fmt: skip
+          f"detector step median {1e3 * np.median(latencies):.2f} ms, policy act {1e3 * np.median(policy_latencies):.2f} ms, "
+          f"env step {1e3 * np.median(env_steps):.1f} ms (detector overhead "
+          f"{100 * np.median(latencies) / np.median(env_steps):.1f}% of the env step)")  # fmt: skip
     return 0
 
 

@@ -16,7 +16,9 @@ Sequences have different lengths; a group of them is padded to the longest, with
 `lengths` and a boolean `mask` (B, L). Per frame: `labels` (0 normal, 1 from the error on;
 padding 0), `actions` (the action taken at that frame; the last frame of an episode,
 after which none was taken, and padding get zeros) and `proprio` (`PROPRIO_DIM`: the TCP
-position in metres and the two finger joints, what `proprio_from_obs` reads online).
+position in metres and the two finger joints, what `proprio_from_obs` reads online) and
+`subgoal` (the TCP position at which the frame's stage ends, see `stage_subgoals`: a target for
+the policies' optional auxiliary loss).
 
 Reads are lazy: only the sampled episodes, and only the frames kept, are read; each
 process (DataLoader worker) opens its own HDF5 handles.
@@ -95,6 +97,19 @@ def subsample(indices: np.ndarray, max_frames: int | None) -> np.ndarray:
     return indices[keep]
 
 
+def stage_subgoals(tcp: np.ndarray, stage: np.ndarray) -> np.ndarray:
+    """(T + 1, 3) TCP positions and (T,) per-step stages -> (T + 1, 3): for every frame, the TCP
+    position on the frame where its stage ends (the frame after the step that completes it; the
+    last frame for the final stage). Frame t + 1 follows step t, so it carries stage[t]; frame 0
+    carries stage[0]."""
+    frame_stage = np.concatenate([stage[:1], stage]) if len(stage) else np.zeros(len(tcp), dtype=np.int64)
+    goals = np.empty_like(tcp)
+    goals[-1] = tcp[-1]
+    for i in range(len(tcp) - 2, -1, -1):
+        goals[i] = goals[i + 1] if frame_stage[i] == frame_stage[i + 1] else tcp[i + 1]
+    return goals
+
+
 @dataclass
 class FrameSequence:
     """One episode's (possibly augmented / subsampled) frames with aligned per-frame data.
@@ -110,6 +125,7 @@ class FrameSequence:
     source: torch.Tensor  # (L,) int64: index of each frame in the episode
     ref: trajectory.EpisodeRef
     proprio: torch.Tensor | None = None  # (L, PROPRIO_DIM) float32
+    subgoal: torch.Tensor | None = None  # (L, 3) float32
 
     def __len__(self) -> int:
         return len(self.rgb)
@@ -163,11 +179,13 @@ class EpisodeReader:
         labels = np.concatenate([[0], group["error_label"][()]]).astype(np.float32)[indices]
         actions = group["actions"][()].astype(np.float32)
         actions = np.concatenate([actions, np.zeros((1, actions.shape[1]), np.float32)])[indices]
-        proprio = None
+        proprio = subgoal = None
         if "obs/extra/tcp_pose" in group and "obs/agent/qpos" in group:  # every rgbd collection has both
-            proprio = torch.from_numpy(proprio_from_obs(group["obs/extra/tcp_pose"][()], group["obs/agent/qpos"][()])[indices])
+            tcp_pose = group["obs/extra/tcp_pose"][()]
+            proprio = torch.from_numpy(proprio_from_obs(tcp_pose, group["obs/agent/qpos"][()])[indices])
+            subgoal = torch.from_numpy(stage_subgoals(tcp_pose[:, :3].astype(np.float32), group["stage"][()])[indices])
         return FrameSequence(rgb, depth, torch.from_numpy(labels), torch.from_numpy(actions), torch.from_numpy(indices), ref,
-                             proprio)  # fmt: skip
+                             proprio, subgoal)  # fmt: skip
 
     def close(self) -> None:
         for f in self._files.values():
@@ -190,7 +208,7 @@ def _read_rows(dataset: Any, rows: np.ndarray) -> np.ndarray:
 
 def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
     """Pad to the longest: frames (B, L, 4, H, W), labels (B, L), actions (B, L, A), lengths (B,),
-    mask (B, L), and proprio (B, L, PROPRIO_DIM) when every sequence has it."""
+    mask (B, L), and proprio (B, L, PROPRIO_DIM) and subgoal (B, L, 3) when every sequence has them."""
     if not seqs:
         return {}
     lengths = torch.tensor([len(s) for s in seqs], dtype=torch.int64)
@@ -206,10 +224,11 @@ def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
         labels[i, :n], actions[i, :n] = s.labels, s.actions
     mask = torch.arange(longest)[None] < lengths[:, None]
     batch = {"frames": frames, "labels": labels, "actions": actions, "lengths": lengths, "mask": mask}
-    if all(s.proprio is not None for s in seqs):
-        batch["proprio"] = torch.zeros(len(seqs), longest, PROPRIO_DIM)
-        for i, s in enumerate(seqs):
-            batch["proprio"][i, : len(s)] = s.proprio
+    for key in ("proprio", "subgoal"):
+        if all(getattr(s, key) is not None for s in seqs):
+            batch[key] = torch.zeros(len(seqs), longest, getattr(seqs[0], key).shape[-1])
+            for i, s in enumerate(seqs):
+                batch[key][i, : len(s)] = getattr(s, key)
     return batch
 
 

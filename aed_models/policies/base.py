@@ -35,6 +35,7 @@ from aed_models.policies.configuration_base import PolicyConfig
 logger = logging.getLogger(__name__)
 
 ACTION_DIM = 4  # pd_ee_delta_pos: dx, dy, dz in [-1, 1], gripper +1 open / -1 closed
+SUBGOAL_SCALE_M = 0.1  # subgoal offsets are learned in units of 10 cm (the reach of a stage)
 
 
 @dataclass
@@ -129,6 +130,7 @@ class DCPolicy(nn.Module):
         self.visual = build_visual_head(config.visual)
         self.actor = Actor(history_dim + task_dim, config.actor_hidden)
         self.proprio_embed = nn.Linear(PROPRIO_DIM, config.visual.out_dim) if config.proprio else None
+        self.subgoal_head = nn.Linear(history_dim + task_dim, 3) if config.subgoal_weight > 0 else None
         self.inverse_dynamics = None
         if config.inverse_dynamics:
             d = config.visual.out_dim
@@ -201,8 +203,12 @@ class DCPolicy(nn.Module):
         """rollouts (B, T, ...) conditioned on the N demos they share -> standardised pos (B, T, 3),
         gripper logit (B, T, 1), history / task features and the per-frame features."""
         f, feats = self._features(rollouts, demos)
-        pos, grip = self.actor(torch.cat([feats.history, feats.task], dim=-1))
-        return {"pos": pos, "grip": grip, "history": feats.history, "task": feats.task, "visual": f}
+        actor_input = torch.cat([feats.history, feats.task], dim=-1)
+        pos, grip = self.actor(actor_input)
+        out = {"pos": pos, "grip": grip, "history": feats.history, "task": feats.task, "visual": f}
+        if self.subgoal_head is not None:
+            out["subgoal"] = self.subgoal_head(actor_input)
+        return out
 
     def loss(self, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
         """Behaviour cloning on one `EnvironmentIterations` item (its rollouts and demos).
@@ -222,6 +228,13 @@ class DCPolicy(nn.Module):
         pos_loss, grip_loss, grip_acc = self._action_loss(out["pos"][acted], out["grip"][acted], actions[acted])
         total = pos_loss + grip_loss
         parts = {"pos_mse": pos_loss.item(), "grip_loss": grip_loss.item(), "grip_acc": grip_acc}
+        if self.subgoal_head is not None:
+            if "subgoal" not in rollouts or "proprio" not in rollouts:
+                raise ValueError("loss: config.subgoal_weight > 0 needs rollouts['subgoal'] and ['proprio'] (stored TCP poses)")
+            offset = (rollouts["subgoal"] - rollouts["proprio"][..., :3]).to(out["pos"].device) / SUBGOAL_SCALE_M
+            subgoal_loss = F.mse_loss(out["subgoal"][acted], offset[acted])
+            total = total + self.config.subgoal_weight * subgoal_loss
+            parts["subgoal_mse"] = subgoal_loss.item()
         if self.inverse_dynamics is not None:
             f = out["visual"]
             pair = torch.cat([f[:, :-1], f[:, 1:]], dim=-1)[acted[:, :-1] & mask[:, 1:]]

@@ -43,7 +43,8 @@ def sequences(n: int, lengths: list[int], seed: int) -> dict[str, torch.Tensor]:
     frames[~mask] = 0.0
     return {"frames": frames, "mask": mask, "lengths": torch.tensor(lengths),
             "actions": torch.randn(n, longest, 4, generator=g).clamp(-1, 1),
-            "proprio": torch.rand(n, longest, 5, generator=g) * mask[..., None]}  # fmt: skip
+            "proprio": torch.rand(n, longest, 5, generator=g) * mask[..., None],
+            "subgoal": torch.rand(n, longest, 3, generator=g) * mask[..., None]}  # fmt: skip
 
 
 @pytest.fixture
@@ -61,7 +62,7 @@ def test_forward_backward_shapes_and_input_unchanged(name, batch):
     assert policy.history_dim + policy.task_dim == policy.actor.body[0].in_features
     loss, parts = policy.loss(batch)
     loss.backward()
-    assert np.isfinite(parts["loss"]) and {"pos_mse", "grip_loss", "grip_acc", "inverse_dynamics"} <= set(parts)
+    assert np.isfinite(parts["loss"]) and {"pos_mse", "grip_loss", "grip_acc", "inverse_dynamics", "subgoal_mse"} <= set(parts)
     assert all(p.grad is not None for p in policy.visual.parameters())
     for key, group in batch.items():
         for k, v in group.items():
@@ -130,7 +131,7 @@ def test_act_reads_maniskill_observations():
         policy.act({"sensor_data": {"front": {"rgb": rgb, "depth": depth}}})
     with pytest.raises(ValueError, match="proprioception"):
         policy.features(frame[None, None], None, {k: v for k, v in demos.items() if k != "proprio"})
-    blind = make_policy("scan", tiny_config("scan"), proprio=False)
+    blind = make_policy("scan", tiny_config("scan"), proprio=False, subgoal_weight=0.0)
     blind.reset({k: v for k, v in demos.items() if k != "proprio"})
     assert blind.act(frame).shape == (4,)
     fresh = tiny_policy("scan")
@@ -296,3 +297,14 @@ def test_train_config_defaults_and_errors():
         TrainPolicyConfig(policy="bc")
     with pytest.raises(ValueError, match="max_frames=1"):
         TrainPolicyConfig(max_frames=1)
+
+
+def test_stage_subgoals_are_where_each_stage_ends():
+    from aed_models.data import stage_subgoals
+
+    tcp = np.arange(6, dtype=np.float32)[:, None] * np.ones((1, 3), np.float32)  # frame t at t metres
+    goals = stage_subgoals(tcp, np.array([0, 0, 1, 1, 2]))  # step 2 enters stage 1, step 4 stage 2
+    assert goals[:, 0].tolist() == [3, 3, 3, 5, 5, 5]
+    assert stage_subgoals(tcp[:1], np.array([], dtype=np.int16))[:, 0].tolist() == [0]
+    with pytest.raises(ValueError, match="subgoal_weight"):
+        policy_config("naive_dc", "mini", proprio=False)

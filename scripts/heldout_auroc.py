@@ -1,0 +1,104 @@
+"""Frame-level AUROC of trained detectors on held-out base environments (issue #10's check).
+
+Detectors are trained on the first base environments of a collection; the environments after
+them were never seen in training. Every agent success and labelled agent failure of those
+environments is scored offline by every detector (with each policy's features for the
+policy-dependent ones), and the frame-level AUROC (failure frames after the onset against
+every other frame) is reported per detector and policy, beside the `time_only` reference
+(score = frame index). Writes JSON and prints a Markdown table.
+
+    python scripts/heldout_auroc.py --runs runs/exp --task PressButton --envs 8 9
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import tyro
+
+from aed_eval import metrics
+from aed_eval.calibrate import load_policy_checked
+from aed_eval.layout import RunLayout
+from aed_eval.logs import setup_logging
+from aed_eval.scoring import DETECTOR_NAMES, Demonstrations, EpisodeScorer, load_checked_detector
+from aed_tasks import trajectory
+
+logger = logging.getLogger("heldout_auroc")
+
+
+@dataclass
+class Config:
+    task: str = "PressButton"
+    runs: Path = Path("runs")
+    """Root of the runs layout holding the trained policies and detectors."""
+    data: Path | None = None
+    """Base collection (default: <runs>/<task>/data/base)."""
+    envs: tuple[int, ...] = (8, 9)
+    """Held-out base environments (not used in training)."""
+    policies: tuple[str, ...] = ("naive_dc", "dct", "scan")
+    detectors: tuple[str, ...] = DETECTOR_NAMES
+    num_demos: int = 5
+    out: Path | None = None
+    """JSON output (default: <runs>/<task>/heldout_auroc.json)."""
+
+
+def frame_labels(refs: list[trajectory.EpisodeRef]) -> list[np.ndarray]:
+    labels = []
+    for ref in refs:
+        frame = np.zeros(ref.num_frames, dtype=bool)
+        if ref.error_onset is not None:
+            frame[int(ref.error_onset) + 1 :] = True  # frame t + 1 follows action t
+        labels.append(frame)
+    return labels
+
+
+def main(cfg: Config) -> dict:
+    layout = RunLayout(cfg.runs)
+    data = Path(cfg.data or layout.data(cfg.task, "base"))
+    refs = [e for e in trajectory.scan_collection(data).episodes()
+            if e.env_index in cfg.envs and e.role in ("agent_success", "agent_failure")]  # fmt: skip
+    if not refs:
+        raise SystemExit(f"{data}: no agent episodes in environments {cfg.envs}")
+    labels = frame_labels(refs)
+    demos = Demonstrations(data, "base", cfg.num_demos)
+    results: dict = {"task": cfg.task, "data": str(data), "envs": list(cfg.envs), "episodes": len(refs),
+                     "failures": sum(r.error_onset is not None for r in refs), "auroc": {}}  # fmt: skip
+    results["auroc"]["time_only"] = metrics.frame_auroc([np.arange(r.num_frames, dtype=float) for r in refs], labels)
+    for policy_name in cfg.policies:
+        start = time.perf_counter()
+        policy, sha = load_policy_checked(layout.policy(cfg.task, policy_name))
+        detectors = [load_checked_detector(layout.detector(cfg.task, d, policy_name), d, cfg.task, sha) for d in cfg.detectors]
+        scorer = EpisodeScorer(detectors, policy, demos)
+        scores: dict[str, list[np.ndarray]] = {d.name: [] for d in detectors}
+        for ref in refs:
+            for name, s in scorer.score(ref).items():
+                scores[name].append(s)
+        scorer.close()
+        results["auroc"][policy_name] = {name: metrics.frame_auroc(s, labels) for name, s in scores.items()}
+        logger.info("%s: %s (%.0f s)", policy_name, results["auroc"][policy_name], time.perf_counter() - start)
+    out = Path(cfg.out or Path(cfg.runs) / cfg.task / "heldout_auroc.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(results, indent=1))
+    print(format_table(results, cfg))
+    return results
+
+
+def format_table(results: dict, cfg: Config) -> str:
+    lines = [f"Frame-level AUROC, {results['task']} held-out base environments {results['envs']} "
+             f"({results['episodes']} episodes, {results['failures']} failures); time_only = "
+             f"{results['auroc']['time_only']:.3f}", "",
+             "| policy | " + " | ".join(cfg.detectors) + " |", "|---|" + "---:|" * len(cfg.detectors)]  # fmt: skip
+    for policy in cfg.policies:
+        row = results["auroc"][policy]
+        lines.append(f"| {policy} | " + " | ".join(f"{row[d]:.3f}" for d in cfg.detectors) + " |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    setup_logging()
+    main(tyro.cli(Config))
