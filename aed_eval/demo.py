@@ -42,7 +42,7 @@ logger = logging.getLogger(__name__)
 # novel environment, the paper's epochs): a GPU machine's job.
 PROFILES: dict[str, dict[str, int | None]] = {
     "mini": {"train_envs": 3, "calibration_envs": 1, "novel_envs": 2, "num_demos": 3, "num_successes": 4,
-             "num_failures": 4, "labelled": 2, "rollouts": 3, "policy_epochs": 8, "detector_epochs": 6},
+             "num_failures": 4, "labelled": 2, "rollouts": 3, "policy_epochs": 20, "detector_epochs": 8},
     "paper": {"train_envs": None, "calibration_envs": 4, "novel_envs": None, "num_demos": 5, "num_successes": 20,
               "num_failures": 20, "labelled": 5, "rollouts": 20, "policy_epochs": None, "detector_epochs": None},
 }  # fmt: skip
@@ -138,8 +138,9 @@ class Stages:
         return result
 
     def composition(self) -> tuple[int, int, int] | None:
-        """Under `mini`, an iteration draws what was collected (demos, successes, failures) instead
-        of the paper's 5 / 10 / 10 with replacement: the same information at a third of the cost."""
+        """Under `mini`, a detector's iteration draws what was collected (demos, successes,
+        failures) instead of the paper's 5 / 10 / 10 with replacement: the same information at a
+        third of the cost. (Policies draw the mini profile's 2 successes per iteration.)"""
         c = self.cfg
         return (c.num_demos, c.num_successes, c.num_failures) if c.profile == "mini" else None
 
@@ -161,7 +162,7 @@ class Stages:
             train_policy(TrainPolicyConfig(
                 task=c.task, policy=policy, profile=c.profile, data=self.layout.data(c.task, "base"),
                 out=self.layout.policy(c.task, policy).parent, epochs=c.policy_epochs, num_envs=c.train_envs,
-                seed=c.seed, composition=None if self.composition() is None else self.composition()[:2],
+                seed=c.seed, composition=None if c.profile == "paper" else (c.num_demos, min(2, c.num_successes)),
             ))  # fmt: skip
 
     def train_detectors(self) -> None:

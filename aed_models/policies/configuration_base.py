@@ -28,8 +28,9 @@ class PolicyConfig:
         subgoal_weight: weight of an auxiliary loss (0 = off, the paper's policies): predict,
             from the actor's input, the offset from the TCP to where the current stage ends
             (`aed_models.data.stage_subgoals`, read from the stored rollouts, no simulator state).
-            It makes the features locate the task objects within hundreds rather than thousands
-            of iterations (on under `mini`).
+            Measured on Press Button (NaiveDC mini, 8 environments, 800 iterations): the offset
+            error fell from 8 to 4 cm, but the action loss fell no faster than without it (0.62
+            vs 0.61 of the actions' variance), so it is off by default.
         demo_frames: encode at most this many frames of each demonstration, evenly spread
             (first and last kept), in training and online alike; 0 = every frame. It bounds the
             cost of DCT's and SCAN's demonstration memory (NaiveDC reads only the ends).

@@ -172,6 +172,16 @@ def test_svdd_has_no_trainable_bias():
     assert biases and all(not detector.get_parameter(n).requires_grad for n in biases)
 
 
+def test_svdd_variance_floor_penalises_a_collapsed_embedding():
+    batch, _ = make_batch()
+    detector = tiny("svdd_ed").eval()
+    _, spread = detector.loss(batch)
+    same = {**batch, "rollouts": {**batch["rollouts"], "frames": batch["rollouts"]["frames"][:1, :1].expand_as(batch["rollouts"]["frames"]).clone()}}
+    _, collapsed = detector.loss(same)  # every frame the same: zero variance, the floor's maximum
+    assert collapsed["variance_floor"] > 0.95 and spread["variance_floor"] < collapsed["variance_floor"]
+    assert "variance_floor" not in make_detector("svdd_ed", **TINY["svdd_ed"], variance_weight=0.0).loss(batch)[1]
+
+
 # -- training loop and feature cache on a tiny synthetic collection (no simulation) -----------
 
 

@@ -54,7 +54,7 @@ def batch():
 
 @pytest.mark.parametrize("name", list(POLICIES))
 def test_forward_backward_shapes_and_input_unchanged(name, batch):
-    policy = tiny_policy(name, inverse_dynamics=True)
+    policy = tiny_policy(name, inverse_dynamics=True, subgoal_weight=1.0)
     before = {k: {kk: vv.clone() for kk, vv in v.items()} for k, v in batch.items()}
     out = policy(batch["rollouts"], batch["demos"])
     assert out["pos"].shape == (2, 12, 3) and out["grip"].shape == (2, 12, 1)
@@ -131,7 +131,7 @@ def test_act_reads_maniskill_observations():
         policy.act({"sensor_data": {"front": {"rgb": rgb, "depth": depth}}})
     with pytest.raises(ValueError, match="proprioception"):
         policy.features(frame[None, None], None, {k: v for k, v in demos.items() if k != "proprio"})
-    blind = make_policy("scan", tiny_config("scan"), proprio=False, subgoal_weight=0.0)
+    blind = make_policy("scan", tiny_config("scan"), proprio=False)
     blind.reset({k: v for k, v in demos.items() if k != "proprio"})
     assert blind.act(frame).shape == (4,)
     fresh = tiny_policy("scan")
@@ -289,6 +289,7 @@ def test_train_config_defaults_and_errors():
     assert (mini.rollout_frames, TrainPolicyConfig(policy="naive_dc").rollout_frames, paper.rollout_frames) == ("even", "random", "even")
     assert policy_config("scan", "mini").proprio and not policy_config("scan", "paper").proprio
     assert TrainPolicyConfig(composition=[3, 4]).composition == (3, 4)
+    assert (mini.composition, mini.epochs, paper.composition) == ((5, 2), 100, None)
     with pytest.raises(ValueError, match="composition"):
         TrainPolicyConfig(composition=(3, 0))
     with pytest.raises(ValueError, match="demo_frames=1"):
@@ -307,4 +308,4 @@ def test_stage_subgoals_are_where_each_stage_ends():
     assert goals[:, 0].tolist() == [3, 3, 3, 5, 5, 5]
     assert stage_subgoals(tcp[:1], np.array([], dtype=np.int16))[:, 0].tolist() == [0]
     with pytest.raises(ValueError, match="subgoal_weight"):
-        policy_config("naive_dc", "mini", proprio=False)
+        policy_config("naive_dc", "mini", proprio=False, subgoal_weight=1.0)

@@ -10,7 +10,9 @@ Against the trivial collapse (every frame mapped to one point, distance 0 for al
   to 0 and frozen, so a constant output can only come from all-zero weights;
 - the centre is a fixed target per iteration (detached), as Ruff et al. fix c;
 - the distance is scale-free, ||z - c||^2 / (||c||^2 + eps): shrinking the embedding towards
-  zero, the one route left to collapse without biases, does not lower the loss.
+  zero does not lower the loss;
+- a variance floor (`SVDDEDConfig.variance_weight`): with a spatial-softmax head, zero
+  convolutions give every frame the same keypoints, a constant embedding without any bias.
 """
 
 from __future__ import annotations
@@ -61,9 +63,15 @@ class SVDDED(ErrorDetector):
         if not mask.any():
             raise ValueError("svdd_ed trains on successes: the batch has no successful rollout frame")
         centre = self.centre(batch["demos"]).detach()
-        embeddings = encode_frames(self.encoder, rollouts["frames"], mask)
-        loss = self.distance(embeddings[mask], centre).mean()
-        return loss, {"svdd": float(loss.detach())}
+        embeddings = encode_frames(self.encoder, rollouts["frames"], mask)[mask]
+        svdd = self.distance(embeddings, centre).mean()
+        parts = {"svdd": float(svdd.detach())}
+        loss = svdd
+        if self.config.variance_weight > 0 and len(embeddings) > 1:
+            floor = torch.relu(1.0 - torch.sqrt(embeddings.var(0) + 1e-4)).mean()
+            loss = loss + self.config.variance_weight * floor
+            parts["variance_floor"] = float(floor.detach())
+        return loss, parts
 
     @torch.no_grad()
     def score(self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None) -> torch.Tensor:
