@@ -57,8 +57,10 @@ def sync(device: torch.device) -> None:
 def online_latency(policy, cfg: Config, device: torch.device) -> dict[int, float]:
     """Median step time (ms) at t = 10 and 200: per step the median over `repeats` rollouts
     (after a warm-up one), then the median over the steps t-5 .. t+5."""
-    demos = {"frames": torch.rand(5, cfg.demo_frames, 4, H, W, device=device)}
+    demos = {"frames": torch.rand(5, cfg.demo_frames, 4, H, W, device=device),
+             "proprio": torch.rand(5, cfg.demo_frames, 5, device=device)}  # fmt: skip
     frames = torch.rand(cfg.steps, 4, H, W, device=device)
+    proprio = torch.rand(cfg.steps, 5, device=device)
     runs = []
     for r in range(cfg.repeats + 1):
         policy.reset(demos)
@@ -66,7 +68,7 @@ def online_latency(policy, cfg: Config, device: torch.device) -> dict[int, float
         for t in range(cfg.steps if r else 20):
             sync(device)
             start = time.perf_counter()
-            policy.act(frames[t])
+            policy.act(frames[t], proprio=proprio[t])
             sync(device)
             times.append(time.perf_counter() - start)
         if r:
@@ -79,9 +81,10 @@ def training_rate(policy, cfg: Config, device: torch.device) -> float:
     optimizer = torch.optim.RMSprop(policy.parameters(), lr=1e-4, weight_decay=1e-2)
     n = cfg.train_frames
     batch = {
-        "demos": {"frames": torch.rand(5, n, 4, H, W, device=device), "mask": torch.ones(5, n, dtype=torch.bool, device=device)},
+        "demos": {"frames": torch.rand(5, n, 4, H, W, device=device), "mask": torch.ones(5, n, dtype=torch.bool, device=device),
+                  "proprio": torch.rand(5, n, 5, device=device)},
         "rollouts": {"frames": torch.rand(10, n, 4, H, W, device=device), "mask": torch.ones(10, n, dtype=torch.bool, device=device),
-                     "actions": torch.rand(10, n, 4, device=device) * 2 - 1},
+                     "actions": torch.rand(10, n, 4, device=device) * 2 - 1, "proprio": torch.rand(10, n, 5, device=device)},
     }  # fmt: skip
     policy.train()
     rates = []

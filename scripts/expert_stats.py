@@ -45,6 +45,8 @@ class Config:
     first_seed: int = 1000
     workers: int = 1
     """Tasks measured in parallel processes."""
+    resume: bool = True
+    """Reuse `<out>/<task>.json` of a task measured with the same seeds (a killed run goes on)."""
 
 
 def spread(n: int, size: int) -> list[int]:
@@ -99,6 +101,12 @@ def measure(kind: str | None, runs: list[tuple[str, int, int]], envs: dict, clea
 def measure_task(task: str, cfg: Config) -> list[dict]:
     """Clean and every error kind of one task; writes `<out>/<task>.json`."""
     setup_logging()
+    path = cfg.out / f"{task}.json"
+    if cfg.resume and path.exists():
+        stored = json.loads(path.read_text())
+        if stored.get("seeds") == [cfg.seeds, cfg.error_seeds, cfg.first_seed]:
+            logger.info("%s: reusing %s", task, path)
+            return stored["results"]
     cls = aed_tasks.get_task(task)
     envs = {s: gym.make(aed_tasks.env_id(task, s), obs_mode="state") for s in ("base", "novel")}
     clean: dict = {}
@@ -107,7 +115,8 @@ def measure_task(task: str, cfg: Config) -> list[dict]:
     results += [measure(kind, error_runs, envs, clean) for kind in cls.error_kinds]
     for env in envs.values():
         env.close()
-    (cfg.out / f"{task}.json").write_text(json.dumps({"task": task, "results": results}, indent=2))
+    seeds = [cfg.seeds, cfg.error_seeds, cfg.first_seed]
+    path.write_text(json.dumps({"task": task, "seeds": seeds, "results": results}, indent=2))
     logger.info("%s done", task)
     return results
 
