@@ -88,8 +88,12 @@ class Curves:
 
     @property
     def auprc(self) -> float:
-        """Average precision: sum over thresholds (descending) of recall gain x precision."""
-        if not self.positives:
+        """Average precision: sum over thresholds (descending) of recall gain x precision.
+
+        Undefined (nan) with a single class, as AUROC: with no successful rollout every score,
+        even a constant, would get 1.0, and a report ranking detectors on it would rank noise.
+        """
+        if not self.positives or not self.negatives:
             return float("nan")
         recall = self.tpr[::-1]
         precision = self.precision[::-1]

@@ -106,3 +106,9 @@ def test_frame_auroc_and_reference_scores():
     time_only = metrics.time_only_scores(lengths, horizon=4)
     np.testing.assert_allclose(time_only[1], [0, 0.25, 0.5, 0.75, 1.0])
     assert [len(s) for s in metrics.random_scores(lengths)] == lengths
+
+
+def test_single_class_gives_undefined_areas():
+    for failed in (np.ones(6, dtype=bool), np.zeros(6, dtype=bool)):
+        c = metrics.rollout_curves(np.linspace(0, 1, 6), failed, metrics.thresholds("probability", None))
+        assert np.isnan(c.auroc) and np.isnan(c.auprc)
