@@ -98,3 +98,25 @@ def test_missing_rollouts_and_mismatched_checkpoints_are_named(pipeline, tmp_pat
     result = subprocess.run([AED, "evaluate", "--task", TASK, "--policy", "naive_dc", "--detectors", "probe",
                              "--runs", str(runs)], capture_output=True, text=True, timeout=300)  # fmt: skip
     assert result.returncode == 2 and "no such collection folder" in result.stderr, result.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("detector", "change", "named"), [
+    ("probe", {"policy_sha256": "0" * 64}, "not on the evaluated checkpoint"),
+    ("lstm_ed", {"task": "PickPlace"}, "trained for task 'PickPlace', not 'PressButton'"),
+])  # fmt: skip
+def test_a_detector_of_another_policy_or_task_is_one_line_and_status_2(pipeline, tmp_path, detector, change, named):
+    from aed_models.checkpoint import load_checkpoint, save_checkpoint
+    from aed_models.detectors import FAMILY
+
+    cfg, _ = pipeline
+    runs = tmp_path / "runs"
+    shutil.copytree(cfg.runs, runs)
+    path = RunLayout(runs).detector(TASK, detector, "naive_dc")
+    ckpt = load_checkpoint(path, family=FAMILY, name=detector)
+    save_checkpoint(path, family=FAMILY, name=detector, config=ckpt.config, state_dict=ckpt.state_dict,
+                    extra={**ckpt.extra, **change})  # fmt: skip
+    result = subprocess.run([AED, "evaluate", "--task", TASK, "--policy", "naive_dc", "--detectors", detector,
+                             "--runs", str(runs)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert result.returncode == 2 and named in result.stderr, result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
