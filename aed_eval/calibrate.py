@@ -21,6 +21,7 @@ import numpy as np
 import tyro
 
 from aed_eval import metrics
+from aed_eval.checks import check_detectors, task_class
 from aed_eval.layout import RunLayout
 from aed_eval.scoring import (
     DETECTOR_NAMES,
@@ -59,16 +60,9 @@ class CalibrateConfig:
     """Show a progress bar."""
 
     def __post_init__(self) -> None:
-        import aed_tasks
-        from aed_models.detectors import DETECTORS
 
-        try:
-            self.task = aed_tasks.get_task(self.task).task_name
-        except KeyError as e:
-            raise ValueError(f"task={self.task!r}: {e.args[0]}") from None
-        unknown = [d for d in self.detectors if d not in DETECTORS]
-        if unknown:
-            raise ValueError(f"detectors={unknown}: known {sorted(DETECTORS)}")
+        self.task = task_class(self.task).task_name
+        check_detectors(self.detectors)
         if not 0.0 < self.alpha < 1.0:
             raise ValueError(f"alpha={self.alpha}: must lie in (0, 1)")
         if self.num_demos < 1:

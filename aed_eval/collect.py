@@ -30,6 +30,7 @@ from typing import Annotated, Any, Literal
 
 import tyro
 
+from aed_eval.checks import task_class
 from aed_eval.executors import execute
 from aed_tasks import trajectory
 
@@ -101,13 +102,9 @@ class CollectConfig:
     """Show a progress bar."""
 
     def __post_init__(self) -> None:
-        import aed_tasks
         from aed_tasks.base_env import CAMERAS
 
-        try:
-            task_cls = aed_tasks.get_task(self.task)
-        except KeyError as e:
-            raise ValueError(f"task={self.task!r}: {e.args[0]}") from None
+        task_cls = task_class(self.task)
         self.task = task_cls.task_name
         if self.split not in task_cls.catalogue_sizes:
             raise ValueError(f"split={self.split!r}: {self.task} has splits {sorted(task_cls.catalogue_sizes)}")

@@ -30,6 +30,7 @@ from typing import Annotated, Any, Literal
 
 import tyro
 
+from aed_eval.checks import task_class
 from aed_eval.layout import RunLayout
 from aed_eval.scoring import DETECTOR_NAMES
 
@@ -92,12 +93,8 @@ class DemoConfig:
     """Root seed of every stage."""
 
     def __post_init__(self) -> None:
-        import aed_tasks
 
-        try:
-            task_cls = aed_tasks.get_task(self.task)
-        except KeyError as e:
-            raise ValueError(f"task={self.task!r}: {e.args[0]}") from None
+        task_cls = task_class(self.task)
         self.task = task_cls.task_name
         if self.profile not in PROFILES:
             raise ValueError(f"profile={self.profile!r}: known {sorted(PROFILES)}")

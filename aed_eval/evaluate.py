@@ -32,6 +32,7 @@ import tyro
 
 from aed_eval import metrics
 from aed_eval.calibrate import load_policy_checked, read_calibration
+from aed_eval.checks import check_detectors, task_class
 from aed_eval.layout import RunLayout
 from aed_eval.scoring import (
     DETECTOR_NAMES,
@@ -78,19 +79,12 @@ class EvaluateConfig:
     """Show progress bars."""
 
     def __post_init__(self) -> None:
-        import aed_tasks
-        from aed_models.detectors import DETECTORS
         from aed_models.policies import POLICIES
 
-        try:
-            self.task = aed_tasks.get_task(self.task).task_name
-        except KeyError as e:
-            raise ValueError(f"task={self.task!r}: {e.args[0]}") from None
+        self.task = task_class(self.task).task_name
         if self.policy not in POLICIES:
             raise ValueError(f"policy={self.policy!r}: known {sorted(POLICIES)}")
-        unknown = [d for d in self.detectors if d not in DETECTORS]
-        if unknown:
-            raise ValueError(f"detectors={unknown}: known {sorted(DETECTORS)}")
+        check_detectors(self.detectors)
         if self.num_demos < 1 or self.window < 0:
             raise ValueError(f"num_demos={self.num_demos}, window={self.window}: num_demos >= 1, window >= 0")
         layout = RunLayout(self.runs)

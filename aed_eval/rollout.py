@@ -27,6 +27,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 import tyro
 
+from aed_eval.checks import task_class
 from aed_eval.collect import episode_seed, plain_value, prepare_folder
 from aed_eval.executors import execute
 from aed_eval.layout import RunLayout
@@ -88,14 +89,10 @@ class RolloutConfig:
     policy_sha256: str = field(default="", init=False)
 
     def __post_init__(self) -> None:
-        import aed_tasks
         from aed_models.checkpoint import file_sha256
         from aed_models.policies import POLICIES
 
-        try:
-            task_cls = aed_tasks.get_task(self.task)
-        except KeyError as e:
-            raise ValueError(f"task={self.task!r}: {e.args[0]}") from None
+        task_cls = task_class(self.task)
         self.task = task_cls.task_name
         if self.policy not in POLICIES:
             raise ValueError(f"policy={self.policy!r}: known {sorted(POLICIES)}")

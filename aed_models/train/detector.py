@@ -38,12 +38,11 @@ from aed_models.checkpoint import file_sha256, load_checkpoint, save_checkpoint
 from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampler, load_episodes
 from aed_models.detectors import DETECTORS, FAMILY, detector_config, make_detector
 from aed_models.train.feature_cache import FeatureCache, FeatureIterations
-from aed_models.train.policy import PAPER_EPOCHS, seed_everything, select_environments
+from aed_models.train.policy import resolve_schedule, seed_everything, select_environments
 
 logger = logging.getLogger(__name__)
 
 MINI = {"epochs": 20, "num_envs": 10, "lr": 3e-4, "weight_decay": 0.0}  # as the policies' (see there)
-PAPER = {"lr": 1e-4, "weight_decay": 1e-2}
 # Single-frame detectors lose nothing by seeing fewer frames per episode; temporal ones see
 # every frame, so that they meet online the frame rate they were trained at.
 MINI_MAX_FRAMES = {"svdd_ed": 32, "taskemb_ed": 32}
@@ -100,34 +99,14 @@ class TrainDetectorConfig:
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
             raise ValueError(f"detector={self.detector!r}: known {sorted(DETECTORS)}")
-        if self.profile not in ("mini", "paper"):
-            raise ValueError(f"profile={self.profile!r}: mini or paper")
         needs_policy = DETECTORS[self.detector].model_type().requires_policy
         if needs_policy and not self.policy:
             raise ValueError(f"policy=None: detector {self.detector!r} reads a policy's features; name the policy")
-        if self.epochs is None:
-            if self.profile == "paper" and self.task not in PAPER_EPOCHS:
-                raise ValueError(f"task={self.task!r}: no paper epoch count (known {sorted(PAPER_EPOCHS)}); pass epochs")
-            self.epochs = PAPER_EPOCHS[self.task] if self.profile == "paper" else MINI["epochs"]
-        if self.num_envs is None and self.profile == "mini":
-            self.num_envs = MINI["num_envs"]
-        if self.max_frames is None:
-            self.max_frames = MINI_MAX_FRAMES.get(self.detector, 0) if self.profile == "mini" else 0
-        for name in ("lr", "weight_decay"):
-            if getattr(self, name) is None:
-                setattr(self, name, (MINI if self.profile == "mini" else PAPER)[name])
+        resolve_schedule(self, MINI, MINI_MAX_FRAMES.get(self.detector, 0))
         if self.composition is not None:
             self.composition = tuple(int(n) for n in self.composition)
             if len(self.composition) != 3 or min(self.composition) < 0 or self.composition[0] < 1:
                 raise ValueError(f"composition={self.composition}: (demos >= 1, successes >= 0, failures >= 0)")
-        for name in ("epochs", "num_envs"):
-            value = getattr(self, name)
-            if value is not None and value < 1:
-                raise ValueError(f"{name}={value}: must be >= 1")
-        if self.max_frames < 0 or self.max_frames == 1:
-            raise ValueError(f"max_frames={self.max_frames}: 0 (all) or >= 2")
-        if self.lr <= 0 or self.weight_decay < 0:
-            raise ValueError(f"lr={self.lr}, weight_decay={self.weight_decay}: lr > 0, weight_decay >= 0")
         runs = Path("runs") / self.task
         self.data = Path(self.data) if self.data is not None else runs / "data" / "base"
         if self.out is None:

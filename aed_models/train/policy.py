@@ -113,16 +113,7 @@ class TrainPolicyConfig:
     def __post_init__(self) -> None:
         if self.policy not in POLICIES:
             raise ValueError(f"policy={self.policy!r}: known {', '.join(POLICIES)}")
-        if self.profile not in ("mini", "paper"):
-            raise ValueError(f"profile={self.profile!r}: mini or paper")
-        if self.epochs is None:
-            if self.profile == "paper" and self.task not in PAPER_EPOCHS:
-                raise ValueError(f"task={self.task!r}: no paper epoch count (known {sorted(PAPER_EPOCHS)}); pass epochs")
-            self.epochs = PAPER_EPOCHS[self.task] if self.profile == "paper" else MINI["epochs"]
-        if self.num_envs is None and self.profile == "mini":
-            self.num_envs = MINI["num_envs"]
-        if self.max_frames is None:
-            self.max_frames = MINI_MAX_FRAMES.get(self.policy, 0) if self.profile == "mini" else 0
+        resolve_schedule(self, MINI, MINI_MAX_FRAMES.get(self.policy, 0))
         if self.composition is None and self.profile == "mini":
             self.composition = MINI["composition"]
         if self.composition is not None:
@@ -133,21 +124,38 @@ class TrainPolicyConfig:
             self.rollout_frames = MINI_ROLLOUT_FRAMES.get(self.policy, "even") if self.profile == "mini" else "even"
         if self.shift is None:
             self.shift = MINI["shift"] if self.profile == "mini" else 0
-        for name in ("lr", "weight_decay"):
-            if getattr(self, name) is None:
-                setattr(self, name, (MINI if self.profile == "mini" else PAPER)[name])
-        for name in ("epochs", "num_envs"):
-            value = getattr(self, name)
-            if value is not None and value < 1:
-                raise ValueError(f"{name}={value}: must be >= 1")
-        if self.max_frames < 0 or self.max_frames == 1:
-            raise ValueError(f"max_frames={self.max_frames}: 0 (all) or >= 2")
         if self.shift < 0:
             raise ValueError(f"shift={self.shift}: must be >= 0")
-        if self.lr <= 0 or self.weight_decay < 0:
-            raise ValueError(f"lr={self.lr}, weight_decay={self.weight_decay}: lr > 0, weight_decay >= 0")
         self.data = Path(self.data) if self.data is not None else Path("runs") / self.task / "data" / "base"
         self.out = Path(self.out) if self.out is not None else Path("runs") / self.task / "policies" / self.policy
+
+
+def resolve_schedule(cfg: Any, mini: dict[str, Any], mini_max_frames: int) -> None:
+    """Fill a training config's unset epochs, num_envs, max_frames, lr and weight_decay from its
+    profile (`paper`: the paper's epochs for the task, every environment, all frames, lr 1e-4,
+    L2 1e-2; `mini`: the values in `mini`), then check them. Shared by policies and detectors."""
+    if cfg.profile not in ("mini", "paper"):
+        raise ValueError(f"profile={cfg.profile!r}: mini or paper")
+    is_mini = cfg.profile == "mini"
+    if cfg.epochs is None:
+        if not is_mini and cfg.task not in PAPER_EPOCHS:
+            raise ValueError(f"task={cfg.task!r}: no paper epoch count (known {sorted(PAPER_EPOCHS)}); pass epochs")
+        cfg.epochs = mini["epochs"] if is_mini else PAPER_EPOCHS[cfg.task]
+    if cfg.num_envs is None and is_mini:
+        cfg.num_envs = mini["num_envs"]
+    if cfg.max_frames is None:
+        cfg.max_frames = mini_max_frames if is_mini else 0
+    for name in ("lr", "weight_decay"):
+        if getattr(cfg, name) is None:
+            setattr(cfg, name, (mini if is_mini else PAPER)[name])
+    for name in ("epochs", "num_envs"):
+        value = getattr(cfg, name)
+        if value is not None and value < 1:
+            raise ValueError(f"{name}={value}: must be >= 1")
+    if cfg.max_frames < 0 or cfg.max_frames == 1:
+        raise ValueError(f"max_frames={cfg.max_frames}: 0 (all) or >= 2")
+    if cfg.lr <= 0 or cfg.weight_decay < 0:
+        raise ValueError(f"lr={cfg.lr}, weight_decay={cfg.weight_decay}: lr > 0, weight_decay >= 0")
 
 
 def seed_everything(seed: int) -> None:
