@@ -137,7 +137,7 @@ class Stages:
     def composition(self) -> tuple[int, int, int] | None:
         """Under `mini`, a detector's iteration draws what was collected (demos, successes,
         failures) instead of the paper's 5 / 10 / 10 with replacement: the same information at a
-        third of the cost. (Policies draw the mini profile's 2 successes per iteration.)"""
+        third of the cost. (Policies draw the mini profile's successes, at most those collected.)"""
         c = self.cfg
         return (c.num_demos, c.num_successes, c.num_failures) if c.profile == "mini" else None
 
@@ -152,14 +152,15 @@ class Stages:
         ))  # fmt: skip
 
     def train_policies(self) -> None:
-        from aed_models.train.policy import TrainPolicyConfig, train_policy
+        from aed_models.train.policy import MINI, MINI_COMPOSITION, TrainPolicyConfig, train_policy
 
         c = self.cfg
         for policy in c.policies:
+            successes = min(MINI_COMPOSITION.get(policy, MINI["composition"])[1], c.num_successes)
             train_policy(TrainPolicyConfig(
                 task=c.task, policy=policy, profile=c.profile, data=self.layout.data(c.task, "base"),
                 out=self.layout.policy(c.task, policy).parent, epochs=c.policy_epochs, num_envs=c.train_envs,
-                seed=c.seed, composition=None if c.profile == "paper" else (c.num_demos, min(2, c.num_successes)),
+                seed=c.seed, composition=None if c.profile == "paper" else (c.num_demos, successes),
             ))  # fmt: skip
 
     def train_detectors(self) -> None:

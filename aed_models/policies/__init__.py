@@ -38,8 +38,8 @@ def _check_name(name: str) -> None:
 
 def policy_config(name: str, profile: Literal["mini", "paper"] = "paper", **overrides: Any) -> PolicyConfig:
     """The config of `name` for a profile: `paper` = the paper's sizes (ResNet18 head);
-    `mini` = CPU-sized (small CNN head, no dropout, smaller feed-forward, proprioception,
-    24 frames per demonstration)."""
+    `mini` = CPU-sized (small CNN head, no dropout, smaller feed-forward, proprioception, a
+    stage-target head read by the actor, 24 frames per demonstration)."""
     _check_name(name)
     if profile not in PROFILES:
         raise ValueError(f"profile={profile!r}: known {list(PROFILES)}")
@@ -47,7 +47,8 @@ def policy_config(name: str, profile: Literal["mini", "paper"] = "paper", **over
     if profile == "paper":
         defaults: dict[str, Any] = {"visual": VisualHeadConfig(arch="resnet18", out_dim=256, dropout=0.5)}
     else:
-        defaults = {"visual": VisualHeadConfig(arch="small_cnn", out_dim=256, dropout=0.0, width=32), "proprio": True}
+        defaults = {"visual": VisualHeadConfig(arch="small_cnn", out_dim=256, dropout=0.0, width=32), "proprio": True,
+                    "subgoal_weight": 1.0}
         if name == "dct":
             defaults["ff_dim"] = 512
         if name in ("dct", "scan"):

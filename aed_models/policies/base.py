@@ -128,9 +128,9 @@ class DCPolicy(nn.Module):
         self.config = config
         self.history_dim, self.task_dim = history_dim, task_dim
         self.visual = build_visual_head(config.visual)
-        self.actor = Actor(history_dim + task_dim, config.actor_hidden)
         self.proprio_embed = nn.Linear(PROPRIO_DIM, config.visual.out_dim) if config.proprio else None
         self.subgoal_head = nn.Linear(history_dim + task_dim, 3) if config.subgoal_weight > 0 else None
+        self.actor = Actor(history_dim + task_dim + (3 if self.subgoal_head is not None else 0), config.actor_hidden)
         self.inverse_dynamics = None
         if config.inverse_dynamics:
             d = config.visual.out_dim
@@ -203,12 +203,20 @@ class DCPolicy(nn.Module):
         """rollouts (B, T, ...) conditioned on the N demos they share -> standardised pos (B, T, 3),
         gripper logit (B, T, 1), history / task features and the per-frame features."""
         f, feats = self._features(rollouts, demos)
-        actor_input = torch.cat([feats.history, feats.task], dim=-1)
-        pos, grip = self.actor(actor_input)
+        pos, grip, subgoal = self._actor(feats.history, feats.task)
         out = {"pos": pos, "grip": grip, "history": feats.history, "task": feats.task, "visual": f}
-        if self.subgoal_head is not None:
-            out["subgoal"] = self.subgoal_head(actor_input)
+        if subgoal is not None:
+            out["subgoal"] = subgoal
         return out
+
+    def _actor(self, history: torch.Tensor, task: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """[f_h, f_zeta] -> (pos, gripper, subgoal offset or None). With a subgoal head, the actor
+        also reads the predicted offset: moving toward a target it was told is an easy map."""
+        actor_input = torch.cat([history, task], dim=-1)
+        if self.subgoal_head is None:
+            return (*self.actor(actor_input), None)
+        subgoal = self.subgoal_head(actor_input)
+        return (*self.actor(torch.cat([actor_input, subgoal], dim=-1)), subgoal)
 
     def loss(self, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
         """Behaviour cloning on one `EnvironmentIterations` item (its rollouts and demos).
@@ -293,7 +301,7 @@ class DCPolicy(nn.Module):
         with torch.inference_mode():
             f_t = self.embed(frame[None], proprio=proprio)
             history, task, self._online["state"] = self.step(f_t, self._online["memory"], self._online["state"])
-            pos, grip = self.actor(torch.cat([history, task], dim=-1))
+            pos, grip, _ = self._actor(history, task)
             action = self.to_action(pos, grip)[0]
         self._online.update(history=history[0], task=task[0], t=self._online["t"] + 1)
         return action.cpu().numpy().astype(np.float32)

@@ -25,12 +25,14 @@ class PolicyConfig:
             embedded linearly and added to every frame's visual feature. The paper's policies
             read RGB-D only (off under `paper`); from-scratch CNNs on a CPU budget learn where
             the gripper is too slowly without it (on under `mini`).
-        subgoal_weight: weight of an auxiliary loss (0 = off, the paper's policies): predict,
-            from the actor's input, the offset from the TCP to where the current stage ends
-            (`aed_models.data.stage_subgoals`, read from the stored rollouts, no simulator state).
-            Measured on Press Button (NaiveDC mini, 8 environments, 800 iterations): the offset
-            error fell from 8 to 4 cm, but the action loss fell no faster than without it (0.62
-            vs 0.61 of the actions' variance), so it is off by default.
+        subgoal_weight: weight of a stage-target loss (0 = off, the paper's policies). A linear
+            head predicts, from [f_h, f_zeta], the offset from the TCP to where the current stage
+            ends (`aed_models.data.stage_subgoals`, read from the stored TCP poses, no simulator
+            state), and the actor reads that prediction beside [f_h, f_zeta]. Why: with the true
+            offset, an MLP predicts the expert's Press Button actions to 0.10 of their variance,
+            without it to 0.26; behaviour cloning alone did not teach the small CNN where the
+            button is (on under `mini`). As an auxiliary loss only (the actor not reading it),
+            it did not lower the action loss (0.62 vs 0.61 of the variance).
         demo_frames: encode at most this many frames of each demonstration, evenly spread
             (first and last kept), in training and online alike; 0 = every frame. It bounds the
             cost of DCT's and SCAN's demonstration memory (NaiveDC reads only the ends).

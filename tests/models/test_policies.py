@@ -59,7 +59,8 @@ def test_forward_backward_shapes_and_input_unchanged(name, batch):
     out = policy(batch["rollouts"], batch["demos"])
     assert out["pos"].shape == (2, 12, 3) and out["grip"].shape == (2, 12, 1)
     assert out["history"].shape == (2, 12, policy.history_dim) and out["task"].shape == (2, 12, policy.task_dim)
-    assert policy.history_dim + policy.task_dim == policy.actor.body[0].in_features
+    assert policy.history_dim + policy.task_dim + 3 == policy.actor.body[0].in_features  # + the predicted subgoal offset
+    assert out["subgoal"].shape == (2, 12, 3)
     loss, parts = policy.loss(batch)
     loss.backward()
     assert np.isfinite(parts["loss"]) and {"pos_mse", "grip_loss", "grip_acc", "inverse_dynamics", "subgoal_mse"} <= set(parts)
@@ -93,8 +94,9 @@ def test_causal_the_past_ignores_the_future(name, batch):
 
 
 @pytest.mark.parametrize("name", list(POLICIES))
-def test_online_features_equal_batched(name, batch):
-    policy = tiny_policy(name)
+@pytest.mark.parametrize("subgoal_weight", [0.0, 1.0])
+def test_online_features_equal_batched(name, subgoal_weight, batch):
+    policy = tiny_policy(name, subgoal_weight=subgoal_weight)
     policy.set_action_stats(torch.randn(50, 4) * 0.2)
     policy.eval()
     rollout, proprio = batch["rollouts"]["frames"][:1], batch["rollouts"]["proprio"][:1]
@@ -131,7 +133,7 @@ def test_act_reads_maniskill_observations():
         policy.act({"sensor_data": {"front": {"rgb": rgb, "depth": depth}}})
     with pytest.raises(ValueError, match="proprioception"):
         policy.features(frame[None, None], None, {k: v for k, v in demos.items() if k != "proprio"})
-    blind = make_policy("scan", tiny_config("scan"), proprio=False)
+    blind = make_policy("scan", tiny_config("scan"), proprio=False, subgoal_weight=0.0)
     blind.reset({k: v for k, v in demos.items() if k != "proprio"})
     assert blind.act(frame).shape == (4,)
     fresh = tiny_policy("scan")
@@ -281,8 +283,8 @@ def test_paper_profile_runs_one_iteration(collection, tmp_path):
 
 def test_train_config_defaults_and_errors():
     mini = TrainPolicyConfig(policy="scan")
-    assert mini.max_frames == 0 and mini.num_envs == 10 and mini.out == Path("runs/PressButton/policies/scan")
-    assert TrainPolicyConfig(policy="naive_dc").max_frames == 32
+    assert mini.max_frames == 0 and mini.num_envs is None and mini.out == Path("runs/PressButton/policies/scan")
+    assert TrainPolicyConfig(policy="naive_dc").max_frames == 8
     assert TrainPolicyConfig(task="CloseDrawer", profile="paper").epochs == 160
     paper = TrainPolicyConfig(profile="paper")
     assert (paper.lr, paper.weight_decay, paper.shift, paper.max_frames) == (1e-4, 1e-2, 0, 0)
@@ -290,6 +292,8 @@ def test_train_config_defaults_and_errors():
     assert policy_config("scan", "mini").proprio and not policy_config("scan", "paper").proprio
     assert TrainPolicyConfig(composition=[3, 4]).composition == (3, 4)
     assert (mini.composition, mini.epochs, paper.composition) == ((5, 2), 100, None)
+    assert TrainPolicyConfig(policy="naive_dc").composition == (5, 8)
+    assert policy_config("dct", "mini").subgoal_weight > 0 and policy_config("dct", "paper").subgoal_weight == 0
     with pytest.raises(ValueError, match="composition"):
         TrainPolicyConfig(composition=(3, 0))
     with pytest.raises(ValueError, match="demo_frames=1"):
