@@ -84,7 +84,8 @@ def training_rate(policy, cfg: Config, device: torch.device) -> float:
         "demos": {"frames": torch.rand(5, n, 4, H, W, device=device), "mask": torch.ones(5, n, dtype=torch.bool, device=device),
                   "proprio": torch.rand(5, n, 5, device=device)},
         "rollouts": {"frames": torch.rand(10, n, 4, H, W, device=device), "mask": torch.ones(10, n, dtype=torch.bool, device=device),
-                     "actions": torch.rand(10, n, 4, device=device) * 2 - 1, "proprio": torch.rand(10, n, 5, device=device)},
+                     "actions": torch.rand(10, n, 4, device=device) * 2 - 1, "proprio": torch.rand(10, n, 5, device=device),
+                     "subgoal": torch.rand(10, n, 3, device=device)},
     }  # fmt: skip
     policy.train()
     rates = []

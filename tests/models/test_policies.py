@@ -313,3 +313,34 @@ def test_stage_subgoals_are_where_each_stage_ends():
     assert stage_subgoals(tcp[:1], np.array([], dtype=np.int16))[:, 0].tolist() == [0]
     with pytest.raises(ValueError, match="subgoal_weight"):
         policy_config("naive_dc", "mini", proprio=False, subgoal_weight=1.0)
+
+
+def load_script(name: str):
+    """A module of scripts/ (not a package), imported by path."""
+    import importlib.util
+    import sys
+
+    path = Path(__file__).resolve().parents[2] / "scripts" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_diagnostic_scripts_run_on_a_collection(collection):
+    floor = load_script("action_floor")
+    x, y = floor.privileged_inputs(collection)
+    assert x.shape[1] == 9 and y.shape == (len(x), 3) and torch.isfinite(x).all()
+    assert np.isfinite(floor.held_out_mse(x, (y - y.mean(0)) / y.std(0).clamp_min(1e-3), steps=3, seed=0))
+    probe = load_script("localization_probe")
+    sets = probe.stage0_frames(collection, frames_per_episode=3, held_out={3}, train_envs=2)
+    assert sets["train"][0].shape[1:] == (4, H, W) and sets["held-out envs"][1].shape[1] == 2
+    probe.main(probe.Config(data=collection, held_out_envs=(3,), steps=2, batch_size=4, eval_every=1))
+
+
+def test_policy_benchmark_trains_every_mini_policy():
+    bench = load_script("bench_policies")
+    for name in POLICIES:  # the mini profile's losses need proprio and stage targets in the batch
+        policy = make_policy(name, policy_config(name, "mini"))
+        assert bench.training_rate(policy, bench.Config(train_frames=2, repeats=1), torch.device("cpu")) > 0
