@@ -60,7 +60,6 @@ class CalibrateConfig:
     """Show a progress bar."""
 
     def __post_init__(self) -> None:
-
         self.task = task_class(self.task).task_name
         check_detectors(self.detectors)
         if not 0.0 < self.alpha < 1.0:

@@ -93,7 +93,6 @@ class DemoConfig:
     """Root seed of every stage."""
 
     def __post_init__(self) -> None:
-
         task_cls = task_class(self.task)
         self.task = task_cls.task_name
         if self.profile not in PROFILES:

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 import tyro
 
-from aed_models.data import load_episodes, stage_subgoals
+from aed_models.data import load_episodes, proprio_from_obs, stage_subgoals
 
 logger = logging.getLogger("action_floor")
 
@@ -42,11 +42,11 @@ def privileged_inputs(data: Path) -> tuple[torch.Tensor, torch.Tensor]:
     for ref in (e for e in load_episodes(data) if e.success):
         with h5py.File(ref.path, "r") as h5:
             group = h5[ref.traj]
-            tcp, qpos = group["obs/extra/tcp_pose"][:, :3], group["obs/agent/qpos"][:, -2:]
+            proprio = proprio_from_obs(group["obs/extra/tcp_pose"][()], group["obs/agent/qpos"][()])
             action, stage = group["actions"][()], group["stage"][()]
-        n = len(action)
+        n, tcp = len(action), proprio[:, :3]
         offset = (stage_subgoals(tcp, stage) - tcp)[:n] / 0.1
-        inputs.append(np.concatenate([tcp[:n], qpos[:n], np.arange(n)[:, None] / 100.0, offset], axis=1))
+        inputs.append(np.concatenate([proprio[:n], np.arange(n)[:, None] / 100.0, offset], axis=1))
         actions.append(action[:, :3])
     return torch.tensor(np.concatenate(inputs), dtype=torch.float32), torch.tensor(np.concatenate(actions), dtype=torch.float32)
 

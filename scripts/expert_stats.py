@@ -101,10 +101,10 @@ def measure(kind: str | None, runs: list[tuple[str, int, int]], envs: dict, clea
 def measure_task(task: str, cfg: Config) -> list[dict]:
     """Clean and every error kind of one task; writes `<out>/<task>.json`."""
     setup_logging()
-    path = cfg.out / f"{task}.json"
+    path, seeds = cfg.out / f"{task}.json", [cfg.seeds, cfg.error_seeds, cfg.first_seed]
     if cfg.resume and path.exists():
         stored = json.loads(path.read_text())
-        if stored.get("seeds") == [cfg.seeds, cfg.error_seeds, cfg.first_seed]:
+        if stored.get("seeds") == seeds:
             logger.info("%s: reusing %s", task, path)
             return stored["results"]
     cls = aed_tasks.get_task(task)
@@ -115,7 +115,6 @@ def measure_task(task: str, cfg: Config) -> list[dict]:
     results += [measure(kind, error_runs, envs, clean) for kind in cls.error_kinds]
     for env in envs.values():
         env.close()
-    seeds = [cfg.seeds, cfg.error_seeds, cfg.first_seed]
     path.write_text(json.dumps({"task": task, "seeds": seeds, "results": results}, indent=2))
     logger.info("%s done", task)
     return results

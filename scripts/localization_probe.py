@@ -28,11 +28,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import h5py
 import numpy as np
 import torch
 import tyro
 
-from aed_models.data import EpisodeReader, load_episodes, pad_sequences
+from aed_models.data import EpisodeReader, load_episodes, pad_sequences, stage_subgoals
 from aed_models.nn.encoders import VisualHead, VisualHeadConfig
 from aed_models.train.policy import random_shift
 
@@ -78,12 +79,14 @@ def stage0_frames(data: Path, frames_per_episode: int, held_out: set[int], train
             seen.add((ref.role, ref.env_index))
         else:
             group = "train"
-        seq = reader.read(ref)
-        if seq.subgoal is None:
-            raise ValueError(f"{ref.path}: no TCP poses stored, so no stage targets")
-        target = seq.subgoal[0, :2]  # where stage 0 ends
-        moved = (seq.subgoal[:, :2] - target).norm(dim=1) > 1e-6
-        end = int(moved.float().argmax()) if moved.any() else len(seq)  # frames while stage 0 lasts
+        with h5py.File(ref.path, "r") as h5:  # poses and stages only: images are read below, once
+            group_h5 = h5[ref.traj]
+            if "obs/extra/tcp_pose" not in group_h5:
+                raise ValueError(f"{ref.path}: no TCP poses stored, so no stage targets")
+            goals = stage_subgoals(group_h5["obs/extra/tcp_pose"][:, :3], group_h5["stage"][()])
+        target = torch.from_numpy(goals[0, :2]).float()  # where stage 0 ends
+        moved = np.linalg.norm(goals[:, :2] - goals[0, :2], axis=1) > 1e-6
+        end = int(moved.argmax()) if moved.any() else len(goals)  # frames while stage 0 lasts
         keep = np.unique(np.linspace(0, max(end - 1, 0), frames_per_episode).round().astype(int))
         seq = reader.read(ref, keep)
         groups[group].append((pad_sequences([seq])["frames"][0], target.expand(len(keep), 2)))

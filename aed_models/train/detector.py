@@ -42,7 +42,7 @@ from aed_models.train.policy import resolve_schedule, seed_everything, select_en
 
 logger = logging.getLogger(__name__)
 
-MINI = {"epochs": 20, "num_envs": 10, "lr": 3e-4, "weight_decay": 0.0}  # as the policies' (see there)
+MINI = {"epochs": 20, "num_envs": 10, "lr": 3e-4, "weight_decay": 0.0}  # lr and L2 as the policies' (see there)
 # Single-frame detectors lose nothing by seeing fewer frames per episode; temporal ones see
 # every frame, so that they meet online the frame rate they were trained at.
 MINI_MAX_FRAMES = {"svdd_ed": 32, "taskemb_ed": 32}
