@@ -133,6 +133,30 @@ def frame_auroc(scores: Sequence[np.ndarray], labels: Sequence[np.ndarray]) -> f
     return exact_auroc(s[y], s[~y])
 
 
+def time_matched_auroc(scores: Sequence[np.ndarray], labels: Sequence[np.ndarray], bin_width: int = 5) -> float:
+    """Frame-level AUROC counting only (error, normal) pairs from the same time bin.
+
+    Error frames come after an onset, so they are late in an episode: a score that only grows
+    with time already ranks them high (`time_only`). Comparing only frames of the same bin of
+    `bin_width` steps removes that: the frame index alone scores about 0.5 here. Bins without
+    both kinds of frame do not count; nan when no bin has both.
+    """
+    if bin_width < 1:
+        raise ValueError(f"bin_width={bin_width}: must be >= 1")
+    s = np.concatenate([np.asarray(x, dtype=float) for x in scores])
+    y = np.concatenate([np.asarray(x, dtype=bool) for x in labels])
+    if s.shape != y.shape:
+        raise ValueError(f"{s.shape[0]} frame scores but {y.shape[0]} frame labels")
+    bins = np.concatenate([np.arange(len(x)) // bin_width for x in labels])
+    weighted, pairs = 0.0, 0
+    for b in np.unique(bins):
+        pos, neg = s[(bins == b) & y], s[(bins == b) & ~y]
+        if len(pos) and len(neg):
+            weighted += exact_auroc(pos, neg) * len(pos) * len(neg)
+            pairs += len(pos) * len(neg)
+    return weighted / pairs if pairs else float("nan")
+
+
 # --- calibrated threshold ------------------------------------------------------------------------
 def conformal_threshold(success_maxima: np.ndarray, alpha: float) -> float:
     """Split-conformal alarm threshold from held-out successful rollouts' maximum scores.

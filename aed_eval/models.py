@@ -21,10 +21,11 @@ class ModelRow:
     reads: str  # what it is built on: its own encoder, or a policy's features
     parameters: int
     paper: float | None
+    note: str = ""  # why the count differs from the paper's
 
     def to_dict(self) -> dict[str, Any]:
         return {"family": self.family, "name": self.name, "reads": self.reads, "parameters": self.parameters,
-                "paper": self.paper}  # fmt: skip
+                "paper": self.paper, "note": self.note}  # fmt: skip
 
 
 def count(module: Any) -> int:
@@ -33,7 +34,13 @@ def count(module: Any) -> int:
 
 def model_rows(profile: Literal["mini", "paper"] = "paper") -> list[ModelRow]:
     """Build every registered model at `profile` sizes and count its parameters."""
-    from aed_models.detectors import DETECTORS, PAPER_PARAMETERS, detector_config, make_detector
+    from aed_models.detectors import (
+        DETECTORS,
+        PAPER_NOTES,
+        PAPER_PARAMETERS,
+        detector_config,
+        make_detector,
+    )
     from aed_models.policies import POLICIES, make_policy, policy_config
 
     rows, policies = [], {}
@@ -42,25 +49,31 @@ def model_rows(profile: Literal["mini", "paper"] = "paper") -> list[ModelRow]:
         rows.append(ModelRow("policy", name, policy.config.visual.arch, count(policy), None))
     for name in DETECTORS:
         config = detector_config(name, profile)
-        paper = PAPER_PARAMETERS.get(name)
+        paper, note = PAPER_PARAMETERS.get(name), PAPER_NOTES.get(name, "")
         if make_detector(name, config).requires_policy:
             for policy_name, policy in policies.items():
                 dims = {"history_dim": policy.history_dim}
                 if hasattr(config, "task_dim"):
                     dims["task_dim"] = policy.task_dim
                 detector = make_detector(name, config, **dims)
-                rows.append(ModelRow("detector", name, f"{policy_name} features", count(detector), paper))
+                rows.append(ModelRow("detector", name, f"{policy_name} features", count(detector), paper, note))
         else:
             arch = getattr(config, "arch", "own encoder")
-            rows.append(ModelRow("detector", name, arch, count(make_detector(name, config)), paper))
+            rows.append(ModelRow("detector", name, arch, count(make_detector(name, config)), paper, note))
     return rows
 
 
 def format_rows(rows: list[ModelRow], profile: str) -> str:
+    """Markdown table; at paper sizes, differences from the paper are footnoted."""
+    noted = list(dict.fromkeys(r.name for r in rows if r.note and profile == "paper"))
     lines = [f"| family | name | reads | parameters ({profile}) | paper |", "|---|---|---|---:|---:|"]
     for r in rows:
         paper = f"{r.paper / 1e6:.2f}M" if r.paper else "-"
+        if r.name in noted:
+            paper += f" [{noted.index(r.name) + 1}]"
         lines.append(f"| {r.family} | {r.name} | {r.reads} | {r.parameters / 1e6:.2f}M | {paper} |")
+    notes = {r.name: r.note for r in rows if r.name in noted}
+    lines += [""] * bool(noted) + [f"[{i}] {name}: {notes[name]}" for i, name in enumerate(noted, 1)]
     return "\n".join(lines)
 
 

@@ -5,7 +5,9 @@ them were never seen in training. Every agent success and labelled agent failure
 environments is scored offline by every detector (with each policy's features for the
 policy-dependent ones), and the frame-level AUROC (failure frames after the onset against
 every other frame) is reported per detector and policy, beside the `time_only` reference
-(score = frame index). Writes JSON and prints a Markdown table.
+(score = frame index). Failure frames come late in an episode, so the time-matched AUROC
+(only pairs of frames from the same 5-step bin; `time_only` ~0.5 there) is reported beside it.
+Writes JSON, the per-frame scores (.npz beside it), and prints a Markdown table.
 
     python scripts/heldout_auroc.py --runs runs/exp --task PressButton --envs 8 9
 """
@@ -43,6 +45,8 @@ class Config:
     policies: tuple[str, ...] = ("naive_dc", "dct", "scan")
     detectors: tuple[str, ...] = DETECTOR_NAMES
     num_demos: int = 5
+    bin_width: int = 5
+    """Time bin (steps) of the time-matched AUROC."""
     out: Path | None = None
     """JSON output (default: <runs>/<task>/heldout_auroc.json)."""
 
@@ -67,8 +71,11 @@ def main(cfg: Config) -> dict:
     labels = frame_labels(refs)
     demos = Demonstrations(data, "base", cfg.num_demos)
     results: dict = {"task": cfg.task, "data": str(data), "envs": list(cfg.envs), "episodes": len(refs),
-                     "failures": sum(r.error_onset is not None for r in refs), "auroc": {}}  # fmt: skip
-    results["auroc"]["time_only"] = metrics.frame_auroc([np.arange(r.num_frames, dtype=float) for r in refs], labels)
+                     "failures": sum(r.error_onset is not None for r in refs), "auroc": {}, "time_matched": {}}  # fmt: skip
+    time_only = [np.arange(r.num_frames, dtype=float) for r in refs]
+    results["auroc"]["time_only"] = metrics.frame_auroc(time_only, labels)
+    results["time_matched"]["time_only"] = metrics.time_matched_auroc(time_only, labels, cfg.bin_width)
+    arrays = {"lengths": np.array([r.num_frames for r in refs]), "labels": np.concatenate(labels)}
     for policy_name in cfg.policies:
         start = time.perf_counter()
         policy, sha = load_policy_checked(layout.policy(cfg.task, policy_name))
@@ -80,22 +87,26 @@ def main(cfg: Config) -> dict:
                 scores[name].append(s)
         scorer.close()
         results["auroc"][policy_name] = {name: metrics.frame_auroc(s, labels) for name, s in scores.items()}
+        results["time_matched"][policy_name] = {name: metrics.time_matched_auroc(s, labels, cfg.bin_width) for name, s in scores.items()}
+        arrays.update({f"{policy_name}/{name}": np.concatenate(s) for name, s in scores.items()})
         logger.info("%s: %s (%.0f s)", policy_name, results["auroc"][policy_name], time.perf_counter() - start)
     out = Path(cfg.out or Path(cfg.runs) / cfg.task / "heldout_auroc.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(results, indent=1))
+    np.savez_compressed(out.with_suffix(".npz"), **arrays)
     print(format_table(results, cfg))
     return results
 
 
 def format_table(results: dict, cfg: Config) -> str:
-    lines = [f"Frame-level AUROC, {results['task']} held-out base environments {results['envs']} "
+    auroc, matched = results["auroc"], results["time_matched"]
+    lines = [f"Frame-level AUROC / time-matched AUROC, {results['task']} held-out base environments {results['envs']} "
              f"({results['episodes']} episodes, {results['failures']} failures); time_only = "
-             f"{results['auroc']['time_only']:.3f}", "",
+             f"{auroc['time_only']:.3f} / {matched['time_only']:.3f}", "",
              "| policy | " + " | ".join(cfg.detectors) + " |", "|---|" + "---:|" * len(cfg.detectors)]  # fmt: skip
     for policy in cfg.policies:
-        row = results["auroc"][policy]
-        lines.append(f"| {policy} | " + " | ".join(f"{row[d]:.3f}" for d in cfg.detectors) + " |")
+        cells = [f"{auroc[policy][d]:.3f} / {matched[policy][d]:.3f}" for d in cfg.detectors]
+        lines.append(f"| {policy} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

@@ -108,6 +108,19 @@ def test_frame_auroc_and_reference_scores():
     assert [len(s) for s in metrics.random_scores(lengths)] == lengths
 
 
+def test_time_matched_auroc_compares_frames_of_the_same_bin_only():
+    labels = [np.array([0, 0, 1, 1]), np.array([0, 0, 0, 0])]
+    scores = [np.array([0.0, 0.0, 0.5, 0.5]), np.array([0.0, 0.0, 0.6, 0.4])]
+    # bins of 2: bin 0 has no error frame; bin 1 pairs (0.5, 0.5) x (0.6, 0.4): 2 wins of 4
+    assert metrics.time_matched_auroc(scores, labels, bin_width=2) == pytest.approx(0.5)
+    assert metrics.frame_auroc(scores, labels) == pytest.approx((4 * 2 + 2) / 12)  # every pair counts
+    time_only = [np.arange(4.0), np.arange(4.0)]
+    assert metrics.time_matched_auroc(time_only, labels, bin_width=1) == pytest.approx(0.5)
+    assert np.isnan(metrics.time_matched_auroc([np.zeros(2)], [np.array([0, 0])]))
+    with pytest.raises(ValueError, match="bin_width"):
+        metrics.time_matched_auroc(scores, labels, bin_width=0)
+
+
 def test_single_class_gives_undefined_areas():
     for failed in (np.ones(6, dtype=bool), np.zeros(6, dtype=bool)):
         c = metrics.rollout_curves(np.linspace(0, 1, 6), failed, metrics.thresholds("probability", None))

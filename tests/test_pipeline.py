@@ -20,6 +20,7 @@ import pytest
 from aed_eval.demo import DemoConfig, run_demo
 from aed_eval.layout import RunLayout
 from aed_eval.scoring import load_checked_detector
+from tests.helpers import load_script
 
 AED = str(Path(sys.executable).with_name("aed"))
 TASK = "PressButton"
@@ -120,3 +121,17 @@ def test_a_detector_of_another_policy_or_task_is_one_line_and_status_2(pipeline,
                              "--runs", str(runs)], capture_output=True, text=True, timeout=300)  # fmt: skip
     assert result.returncode == 2 and named in result.stderr, result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_heldout_auroc_script_scores_every_detector_of_a_runs_layout(pipeline, tmp_path):
+    cfg, _ = pipeline
+    script = load_script("heldout_auroc")
+    out = tmp_path / "auroc.json"
+    results = script.main(script.Config(task=TASK, runs=cfg.runs, envs=(0,), policies=("naive_dc",),
+                                        detectors=("probe", "lstm_ed"), num_demos=1, out=out))  # fmt: skip
+    assert results["failures"] == 2 and json.loads(out.read_text()) == results
+    for kind in ("auroc", "time_matched"):
+        assert 0.0 <= results[kind]["time_only"] <= 1.0 and set(results[kind]["naive_dc"]) == {"probe", "lstm_ed"}
+    arrays = np.load(out.with_suffix(".npz"))
+    assert len(arrays["naive_dc/probe"]) == len(arrays["labels"]) == arrays["lengths"].sum()

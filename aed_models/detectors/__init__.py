@@ -55,6 +55,13 @@ PAPER_PARAMETERS: dict[str, float] = {
     "probe": 0.65e6,
 }
 
+# Why a count differs from the paper's (printed by `aed models`).
+PAPER_NOTES: dict[str, str] = {
+    "dct_ed": "0.1% under: the paper does not give DCT's norm and positional-encoding sizes",
+    "probe": "sized by the policy's f_h and f_zeta (256; NaiveDC's f_zeta is 512, first + last frame): "
+    "LSTM 0.53M + gate 0.07M + task transform f_zeta x 256 + fusion 0.03M; the paper gives no inner widths",
+}
+
 
 def _entry(name: str) -> DetectorEntry:
     if name not in DETECTORS:
@@ -130,4 +137,4 @@ def load_detector(path: Path | str, name: str | None = None) -> ErrorDetector:
     return detector.eval()
 
 
-__all__ = ["DETECTORS", "PAPER_PARAMETERS", "detector_config", "load_detector", "make_detector", "save_detector"]
+__all__ = ["DETECTORS", "PAPER_NOTES", "PAPER_PARAMETERS", "detector_config", "load_detector", "make_detector", "save_detector"]

@@ -227,6 +227,9 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
         if ckpt.extra.get("policy_sha256") != policy_sha:
             raise ValueError(f"{last_path}: trained on policy {ckpt.extra.get('policy_sha256')}, not {policy_sha}; "
                              "use another out folder or resume=False")  # fmt: skip
+        if ckpt.config != detector.config_dict():
+            raise ValueError(f"{last_path}: trained with another {cfg.detector} config ({ckpt.config}); "
+                             "pass --no-resume or another --out")  # fmt: skip
         detector.load_state_dict(ckpt.state_dict)
         optimizer.load_state_dict(ckpt.extra["optimizer"])
         torch.set_rng_state(ckpt.extra["torch_rng"])

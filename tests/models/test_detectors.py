@@ -227,6 +227,10 @@ def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
     assert [e["epoch"] for e in log] == [1, 2] and log[0] == first.checkpoint_extra["log"][0]
     with pytest.raises(ValueError, match="policy=None"):
         TrainDetectorConfig(detector="probe")
+    other = make_detector("lstm_ed", **{**TINY["lstm_ed"], "head_dim": 9}).config
+    with pytest.raises(ValueError, match="another lstm_ed config"):
+        train_detector(TrainDetectorConfig(detector="lstm_ed", data=collection, out=tmp_path, epochs=3, num_envs=1,
+                                           max_frames=6, progress=False), other)  # fmt: skip
 
 
 def test_train_detector_config_profiles_and_composition(collection):
@@ -319,3 +323,33 @@ def test_rnd_oe_scores_are_relative_to_the_training_error():
     successes = batch["rollouts"]["mask"] & ~batch["rollouts"]["is_failure"][:, None]
     assert scores[successes].mean().item() == pytest.approx(1.0, rel=1e-5)
     assert float(rnd.error_scale) == pytest.approx(float(loss.detach()), rel=1e-6)
+
+
+def test_rnd_oe_whitens_its_inputs_with_the_statistics_of_every_training_frame():
+    """Running input statistics merged batch by batch equal those of all frames at once."""
+    rnd = tiny("rnd_oe")
+    torch.manual_seed(0)
+    batches = [torch.randn(n, DH) * 3 + 1 for n in (5, 11, 2)]
+    for b in batches:
+        rnd.update_input_stats(b)
+    every = torch.cat(batches)
+    assert float(rnd.input_count) == len(every)
+    assert torch.allclose(rnd.input_mean, every.mean(0), atol=1e-5)
+    assert torch.allclose(rnd.input_var, every.var(0, unbiased=False), atol=1e-4)
+    whitened = rnd._whiten(every)
+    assert torch.allclose(whitened.mean(0), torch.zeros(DH), atol=1e-4)
+    assert whitened.abs().max() <= rnd.config.input_clip
+
+
+def test_aed_models_lists_paper_counts_and_explains_each_difference():
+    from aed_eval.models import format_rows, model_rows
+
+    rows = model_rows("paper")
+    for row in rows:
+        if row.paper:
+            assert abs(row.parameters - row.paper) / row.paper < 0.2, row
+            off = abs(row.parameters - row.paper) / row.paper > 0.001
+            assert bool(row.note) or not off, f"{row.name}: {row.parameters} vs the paper's {row.paper} unexplained"
+    assert {r.name for r in rows if r.family == "detector"} == set(DETECTORS)
+    text = format_rows(rows, "paper")
+    assert "| detector | probe | dct features | 0.69M | 0.65M [2] |" in text and "\n[2] probe: " in text

@@ -16,6 +16,7 @@ from aed_models.policies import POLICIES, load_policy, make_policy, policy_confi
 from aed_models.train.policy import TrainPolicyConfig, train_policy
 from aed_tasks import trajectory
 from aed_tasks.episode import Episode
+from tests.helpers import load_script
 
 H, W = 32, 40
 TINY = {
@@ -313,19 +314,6 @@ def test_stage_subgoals_are_where_each_stage_ends():
     assert stage_subgoals(tcp[:1], np.array([], dtype=np.int16))[:, 0].tolist() == [0]
     with pytest.raises(ValueError, match="subgoal_weight"):
         policy_config("naive_dc", "mini", proprio=False, subgoal_weight=1.0)
-
-
-def load_script(name: str):
-    """A module of scripts/ (not a package), imported by path."""
-    import importlib.util
-    import sys
-
-    path = Path(__file__).resolve().parents[2] / "scripts" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_diagnostic_scripts_run_on_a_collection(collection):

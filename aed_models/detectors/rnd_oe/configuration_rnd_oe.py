@@ -17,7 +17,8 @@ class RNDOEConfig:
         out_dim: size of the random target's output.
         scale_momentum: momentum of the running mean of the training (success) error that
             scores are divided by, so that ~1 means "as familiar as training successes".
-        norm_eps: epsilon of the unit norm of f_h.
+        norm_eps: epsilon of the unit norm of f_h and of the whitening.
+        input_clip: whitened inputs are clipped to +-input_clip (RND's 5).
     """
 
     history_dim: int = 256
@@ -25,9 +26,10 @@ class RNDOEConfig:
     out_dim: int = 64
     scale_momentum: float = 0.99
     norm_eps: float = 1e-5
+    input_clip: float = 5.0
 
     def __post_init__(self) -> None:
-        for name in ("history_dim", "hidden_dim", "out_dim", "norm_eps"):
+        for name in ("history_dim", "hidden_dim", "out_dim", "norm_eps", "input_clip"):
             positive(name, getattr(self, name))
         if not 0.0 <= self.scale_momentum < 1.0:
             raise ValueError(f"scale_momentum={self.scale_momentum}: must lie in [0, 1)")

@@ -1,10 +1,16 @@
 """RND-OE: random network distillation on the frozen policy's history features f_h.
 
-A fixed, randomly initialised target MLP maps each unit-normalised f_h[t] to a vector; a
-predictor MLP learns to reproduce it on the frames of *successful* rollouts only. Where the
-policy's internal state looks like the successes it was fitted on, the prediction error is
-small; unfamiliar states (a behaviour error, a new failure mode) give a large error. No failure
-data is needed, and every frame is scored on its own (O(1) per step).
+A fixed, randomly initialised target MLP maps each f_h[t] to a vector; a predictor MLP learns
+to reproduce it on the frames of *successful* rollouts only. Where the policy's internal state
+looks like the successes it was fitted on, the prediction error is small; unfamiliar states (a
+behaviour error, a new failure mode) give a large error. No failure data is needed, and every
+frame is scored on its own (O(1) per step).
+
+Input normalisation (as in Burda et al.'s RND): f_h is unit-normalised, then whitened per
+dimension by the running mean and variance of the training frames and clipped to +-5. Without
+it the target is near constant: a policy's f_h of different frames point in almost the same
+direction, the random target maps them all to nearly one vector, and the predictor learns that
+vector within a few epochs (training error ~1e-6) and nothing about the frames.
 
 Score normalisation: the raw error is divided by a running mean of the training error on
 success frames (buffers saved with the weights), so a score of ~1 means "as familiar as the
@@ -44,16 +50,41 @@ class RNDOE(ErrorDetector):
         # bias-corrected running mean of the training error (as Adam's moments): ema / weight
         self.register_buffer("error_ema", torch.zeros(()))
         self.register_buffer("ema_weight", torch.zeros(()))
+        # running input statistics (Chan et al.'s parallel update): count, mean, variance
+        self.register_buffer("input_count", torch.zeros(()))
+        self.register_buffer("input_mean", torch.zeros(c.history_dim))
+        self.register_buffer("input_var", torch.ones(c.history_dim))
         self._started = False
+
+    def _unit(self, history: torch.Tensor) -> torch.Tensor:
+        if history.shape[-1] != self.config.history_dim:
+            raise ValueError(f"history features of size {history.shape[-1]}: built for history_dim={self.config.history_dim}")
+        return history / history.norm(dim=-1, keepdim=True).clamp(min=self.config.norm_eps)
+
+    @torch.no_grad()
+    def update_input_stats(self, unit: torch.Tensor) -> None:
+        """Merge a (N, Dh) batch of unit features into the running mean and variance."""
+        n = float(unit.shape[0])
+        if n == 0:
+            return
+        mean, var = unit.mean(0), unit.var(0, unbiased=False)
+        total = self.input_count + n
+        delta = mean - self.input_mean
+        m2 = self.input_var * self.input_count + var * n + delta.pow(2) * self.input_count * n / total
+        self.input_mean.add_(delta * n / total)
+        self.input_var.copy_(m2 / total)
+        self.input_count.copy_(total)
+
+    def _whiten(self, unit: torch.Tensor) -> torch.Tensor:
+        std = self.input_var.sqrt().clamp(min=self.config.norm_eps)
+        return ((unit - self.input_mean) / std).clamp(-self.config.input_clip, self.config.input_clip)
 
     def errors(self, history: torch.Tensor) -> torch.Tensor:
         """(..., Dh) -> raw squared prediction errors (...), averaged over output cells."""
-        if history.shape[-1] != self.config.history_dim:
-            raise ValueError(f"history features of size {history.shape[-1]}: built for history_dim={self.config.history_dim}")
-        unit = history / history.norm(dim=-1, keepdim=True).clamp(min=self.config.norm_eps)
+        x = self._whiten(self._unit(history))
         with torch.no_grad():
-            target = self.target(unit)
-        return (self.predictor(unit) - target).pow(2).mean(-1)
+            target = self.target(x)
+        return (self.predictor(x) - target).pow(2).mean(-1)
 
     def loss(self, batch: Batch, policy_features: Any = None) -> tuple[torch.Tensor, dict[str, float]]:
         """Mean prediction error over the valid frames of successful rollouts."""
@@ -64,6 +95,8 @@ class RNDOE(ErrorDetector):
         if not mask.any():
             raise ValueError("rnd_oe trains on successes: the batch has no successful rollout frame")
         history, _ = split_features(policy_features)
+        if self.training:
+            self.update_input_stats(self._unit(history[mask]))
         loss = self.errors(history)[mask].mean()
         if self.training:
             m = self.config.scale_momentum
