@@ -14,6 +14,7 @@ _LAZY = {
     "VisualHead": "aed_models.nn.encoders",
     "build_visual_head": "aed_models.nn.encoders",
     "encode_frames": "aed_models.nn.encoders",
+    "lstm_step": "aed_models.nn.recurrent",
 }
 
 __all__ = ["VisualHeadConfig", *_LAZY]

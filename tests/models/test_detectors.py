@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from torch import nn
 
 from aed_models.checkpoint import CheckpointError
 from aed_models.detectors import (
@@ -357,3 +358,20 @@ def test_aed_models_lists_paper_counts_and_explains_each_difference():
     assert {r.name for r in rows if r.family == "detector"} == set(DETECTORS)
     text = format_rows(rows, "paper")
     assert "| detector | probe | dct features | 0.69M | 0.65M [2] |" in text and "\n[2] probe: " in text
+
+
+@pytest.mark.parametrize("num_layers", [1, 2])
+def test_lstm_step_equals_nn_lstm_step_by_step(num_layers):
+    from aed_models.nn import lstm_step
+
+    torch.manual_seed(0)
+    lstm = nn.LSTM(6, 5, num_layers=num_layers, batch_first=True).eval()
+    x = torch.randn(3, 7, 6)
+    expected, (h_n, c_n) = lstm(x)
+    state = None
+    for t in range(x.shape[1]):
+        out, state = lstm_step(lstm, x[:, t], state)
+        assert torch.allclose(out, expected[:, t], atol=1e-6)
+    assert torch.allclose(state[0], h_n, atol=1e-6) and torch.allclose(state[1], c_n, atol=1e-6)
+    with pytest.raises(ValueError, match="expected"):
+        lstm_step(lstm, torch.randn(3, 4))

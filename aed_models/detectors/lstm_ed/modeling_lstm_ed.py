@@ -58,6 +58,7 @@ class LSTMED(ErrorDetector):
     def step(self, frame: torch.Tensor | None = None, policy_features: Any = None) -> float:
         if not self._started:
             raise RuntimeError("lstm_ed: call reset() before step()")
-        feats = self.encoder(check_frame(frame, self.name))[:, None]
-        out, self._state = self.lstm(feats, self._state)
-        return float(torch.sigmoid(self.classifier(out))[0, 0, 0])
+        from aed_models.nn import lstm_step
+
+        out, self._state = lstm_step(self.lstm, self.encoder(check_frame(frame, self.name)), self._state)
+        return float(torch.sigmoid(self.classifier(out))[0, 0])

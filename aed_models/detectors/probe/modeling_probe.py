@@ -21,6 +21,7 @@ from torch import nn
 from aed_models.detectors.base import Batch, ErrorDetector, rollout_mask, split_features
 from aed_models.detectors.probe.configuration_probe import ProbeConfig
 from aed_models.losses import masked_bce, pattern_l1, sample_triplets, temporal_triplet_loss
+from aed_models.nn.recurrent import lstm_step
 
 
 def feature_norm(x: torch.Tensor, eps: float) -> torch.Tensor:
@@ -120,6 +121,6 @@ class Probe(ErrorDetector):
         f_h, f_zeta = split_features(policy_features)
         history, task = f_h.reshape(1, 1, -1), f_zeta.reshape(1, 1, -1)
         self._check_dims(history, task)
-        flow, self._state = self.flow(self.patterns(history), self._state)
-        _, logit = self.head(flow, task)
+        flow, self._state = lstm_step(self.flow, self.patterns(history)[:, 0], self._state)
+        _, logit = self.head(flow[:, None], task)
         return float(torch.sigmoid(logit))

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from aed_models.nn.recurrent import lstm_step
 from aed_models.policies.base import DCPolicy
 from aed_models.policies.scan.configuration_scan import SCANConfig
 
@@ -57,5 +58,5 @@ class SCANPolicy(DCPolicy):
         return None  # nn.LSTM starts from zeros
 
     def step(self, f_t: torch.Tensor, memory: DemoMemory, state):
-        history, state = self.lstm(f_t[:, None], state)
-        return history[:, 0], self.attend(history, memory)[:, 0], state
+        history, state = lstm_step(self.lstm, f_t, state)
+        return history, self.attend(history[:, None], memory)[:, 0], state
