@@ -9,6 +9,7 @@ as inputs, so their numbers exclude the policy's own cost. Training: frames per 
 
     python scripts/bench_detectors.py                       # mini profile, every detector
     python scripts/bench_detectors.py --profile paper --detectors probe dct_ed
+    python scripts/bench_detectors.py --profile paper --device cuda --train-iterations 10
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import statistics
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import torch
 import tyro
@@ -46,6 +48,8 @@ class Config:
     train_iterations: int = 3
     threads: int = 1
     """torch threads (1: the cost of one detector on one core, as when monitoring online)."""
+    device: str = "cpu"
+    """torch device (cuda: the paper profile's sizes where they are meant to train)."""
     out: Path = Path("runs/bench")
 
 
@@ -69,11 +73,28 @@ def synthetic_batch(b: int, t: int, n: int = 5, length: int = 32) -> tuple[dict,
     return {"demos": demos, "rollouts": rollouts}, (torch.randn(b, t, Config.history_dim), torch.randn(b, t, Config.task_dim))
 
 
+def to_device(tree: Any, device: torch.device) -> Any:
+    if isinstance(tree, torch.Tensor):
+        return tree.to(device)
+    if isinstance(tree, dict):
+        return {k: to_device(v, device) for k, v in tree.items()}
+    if isinstance(tree, (tuple, list)):
+        return type(tree)(to_device(v, device) for v in tree)
+    return tree
+
+
+def synchronize(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
 def online_latency(detector, demos: dict, cfg: Config) -> tuple[float, float]:
+    """Median ms of one step around t=10 and t=200 (each step returns a float: it waits for the device)."""
+    device = torch.device(cfg.device)
     detector.eval()
-    frame = torch.rand(4, H, W)
-    feats = (torch.randn(cfg.history_dim), torch.randn(cfg.task_dim))
-    detector.reset(demos)
+    frame = torch.rand(4, H, W, device=device)
+    feats = (torch.randn(cfg.history_dim, device=device), torch.randn(cfg.task_dim, device=device))
+    detector.reset(to_device(demos, device))
     times = []
     for _ in range(cfg.horizon):
         start = time.perf_counter()
@@ -83,9 +104,10 @@ def online_latency(detector, demos: dict, cfg: Config) -> tuple[float, float]:
 
 
 def train_throughput(detector, cfg: Config) -> float:
+    device = torch.device(cfg.device)
     detector.train()
     b = 20
-    batch, features = synthetic_batch(b, cfg.rollout_frames)
+    batch, features = to_device(synthetic_batch(b, cfg.rollout_frames), device)
     if detector.trains_on == "successes":
         batch["rollouts"]["is_failure"][:] = False
     optimizer = torch.optim.RMSprop([p for p in detector.parameters() if p.requires_grad], lr=1e-4, weight_decay=1e-2)
@@ -96,6 +118,7 @@ def train_throughput(detector, cfg: Config) -> float:
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
+        synchronize(device)
         rates.append(b * cfg.rollout_frames / (time.perf_counter() - start))
     return statistics.median(rates[1:])  # the first iteration warms up
 
@@ -112,15 +135,16 @@ def main(cfg: Config) -> None:
         overrides = {}
         if DETECTORS[name].model_type().requires_policy:
             overrides = {"history_dim": cfg.history_dim, **({"task_dim": cfg.task_dim} if name == "probe" else {})}
-        detector = make_detector(name, detector_config(name, cfg.profile), **overrides)
+        detector = make_detector(name, detector_config(name, cfg.profile), **overrides).to(cfg.device)
         t10, t200 = online_latency(detector, batch["demos"], cfg)
         rate = train_throughput(detector, cfg)
         rows.append(Row(name, detector.num_parameters(), PAPER_PARAMETERS.get(name), round(t10, 3), round(t200, 3), round(rate, 1)))
         logger.info("%s: %s", name, rows[-1])
-    meta = {"profile": cfg.profile, "threads": cfg.threads, "torch": torch.__version__, "machine": platform.processor() or platform.machine()}
+    machine = torch.cuda.get_device_name(cfg.device) if cfg.device.startswith("cuda") else platform.processor() or platform.machine()
+    meta = {"profile": cfg.profile, "threads": cfg.threads, "torch": torch.__version__, "machine": machine, "device": cfg.device}
     cfg.out.mkdir(parents=True, exist_ok=True)
     (cfg.out / f"bench_detectors_{cfg.profile}.json").write_text(json.dumps({"meta": meta, "rows": [asdict(r) for r in rows]}, indent=2))
-    lines = [f"profile {cfg.profile}, {cfg.threads} torch thread(s), torch {torch.__version__}", "",
+    lines = [f"profile {cfg.profile}, {cfg.threads} torch thread(s), torch {torch.__version__}, {machine}", "",
              "| detector | parameters | paper | step ms (t=10) | step ms (t=200) | train frames/s |",
              "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
     for r in rows:

@@ -375,3 +375,17 @@ def test_lstm_step_equals_nn_lstm_step_by_step(num_layers):
     assert torch.allclose(state[0], h_n, atol=1e-6) and torch.allclose(state[1], c_n, atol=1e-6)
     with pytest.raises(ValueError, match="expected"):
         lstm_step(lstm, torch.randn(3, 4))
+
+
+def test_detector_benchmark_runs_every_mini_detector():
+    from tests.helpers import load_script
+
+    bench = load_script("bench_detectors")
+    cfg = bench.Config(train_iterations=1, rollout_frames=2)
+    batch, _ = bench.synthetic_batch(1, 1)
+    for name in DETECTORS:
+        overrides = {"history_dim": cfg.history_dim, "task_dim": cfg.task_dim} if name == "probe" else {}
+        overrides = {"history_dim": cfg.history_dim} if name == "rnd_oe" else overrides
+        detector = make_detector(name, detector_config(name, "mini"), **overrides)
+        t10, t200 = bench.online_latency(detector, batch["demos"], cfg)
+        assert t10 > 0 and t200 > 0 and bench.train_throughput(detector, cfg) > 0
