@@ -65,15 +65,13 @@ def model_rows(profile: Literal["mini", "paper"] = "paper") -> list[ModelRow]:
 
 def format_rows(rows: list[ModelRow], profile: str) -> str:
     """Markdown table; at paper sizes, differences from the paper are footnoted."""
-    noted = list(dict.fromkeys(r.name for r in rows if r.note and profile == "paper"))
+    notes = {r.name: r.note for r in rows if r.note and profile == "paper"}  # in first-seen order
+    marks = {name: f" [{i}]" for i, name in enumerate(notes, 1)}
     lines = [f"| family | name | reads | parameters ({profile}) | paper |", "|---|---|---|---:|---:|"]
     for r in rows:
-        paper = f"{r.paper / 1e6:.2f}M" if r.paper else "-"
-        if r.name in noted:
-            paper += f" [{noted.index(r.name) + 1}]"
+        paper = (f"{r.paper / 1e6:.2f}M" if r.paper else "-") + marks.get(r.name, "")
         lines.append(f"| {r.family} | {r.name} | {r.reads} | {r.parameters / 1e6:.2f}M | {paper} |")
-    notes = {r.name: r.note for r in rows if r.name in noted}
-    lines += [""] * bool(noted) + [f"[{i}] {name}: {notes[name]}" for i, name in enumerate(noted, 1)]
+    lines += [""] * bool(notes) + [f"[{i}] {name}: {note}" for i, (name, note) in enumerate(notes.items(), 1)]
     return "\n".join(lines)
 
 

@@ -21,13 +21,13 @@ import statistics
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
 import tyro
 
 from aed_eval.logs import setup_logging
 from aed_models.detectors import DETECTORS, PAPER_PARAMETERS, detector_config, make_detector
+from aed_models.detectors.base import to_device
 
 logger = logging.getLogger("bench_detectors")
 H, W = 120, 160
@@ -71,16 +71,6 @@ def synthetic_batch(b: int, t: int, n: int = 5, length: int = 32) -> tuple[dict,
                 "lengths": torch.full((b,), t), "labels": labels, "is_failure": torch.arange(b) >= b // 2}  # fmt: skip
     demos = {"frames": torch.rand(n, length, 4, H, W, generator=g), "mask": torch.ones(n, length, dtype=torch.bool)}
     return {"demos": demos, "rollouts": rollouts}, (torch.randn(b, t, Config.history_dim), torch.randn(b, t, Config.task_dim))
-
-
-def to_device(tree: Any, device: torch.device) -> Any:
-    if isinstance(tree, torch.Tensor):
-        return tree.to(device)
-    if isinstance(tree, dict):
-        return {k: to_device(v, device) for k, v in tree.items()}
-    if isinstance(tree, (tuple, list)):
-        return type(tree)(to_device(v, device) for v in tree)
-    return tree
 
 
 def synchronize(device: torch.device) -> None:

@@ -31,6 +31,17 @@ def check_profile(profile: str) -> None:
         raise ValueError(f"profile={profile!r}: known {list(PROFILES)}")
 
 
+def to_device(value: Any, device: torch.device) -> Any:
+    """Tensors inside nested dicts / tuples / lists moved to `device`; anything else as is."""
+    if isinstance(value, torch.Tensor):
+        return value.to(device, non_blocking=True)
+    if isinstance(value, dict):
+        return {k: to_device(v, device) for k, v in value.items()}
+    if isinstance(value, (tuple, list)):
+        return type(value)(to_device(v, device) for v in value)
+    return value
+
+
 def split_features(policy_features: Any, what: str = "policy_features") -> tuple[torch.Tensor, torch.Tensor]:
     """(history, task) from a `PolicyFeatures`, a (history, task) pair, or a dict with those keys."""
     if policy_features is None:

@@ -37,6 +37,7 @@ from aed_models.augment import RolloutAugment
 from aed_models.checkpoint import file_sha256, load_checkpoint, save_checkpoint
 from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampler, load_episodes
 from aed_models.detectors import DETECTORS, FAMILY, detector_config, make_detector
+from aed_models.detectors.base import to_device
 from aed_models.train.feature_cache import FeatureCache, FeatureIterations
 from aed_models.train.policy import resolve_schedule, seed_everything, select_environments
 
@@ -175,17 +176,6 @@ def _features_root(cfg: TrainDetectorConfig) -> Path:
     if data.parent.name == "data":
         return data.parent.parent / "features"
     return Path(cfg.out) / "features"
-
-
-def to_device(value: Any, device: torch.device) -> Any:
-    """Tensors inside nested dicts / tuples / lists moved to `device`; anything else as is."""
-    if isinstance(value, torch.Tensor):
-        return value.to(device, non_blocking=True)
-    if isinstance(value, dict):
-        return {k: to_device(v, device) for k, v in value.items()}
-    if isinstance(value, (tuple, list)):
-        return type(value)(to_device(v, device) for v in value)
-    return value
 
 
 def prepare(batch: dict[str, Any], model_type: type, device: torch.device) -> tuple[dict[str, Any], Any]:

@@ -14,6 +14,7 @@ from torch import nn
 from aed_models.detectors.base import Batch, ErrorDetector, check_frame, rollout_mask
 from aed_models.detectors.lstm_ed.configuration_lstm_ed import LSTMEDConfig
 from aed_models.losses import masked_bce
+from aed_models.nn.recurrent import lstm_step
 
 
 class LSTMED(ErrorDetector):
@@ -58,7 +59,5 @@ class LSTMED(ErrorDetector):
     def step(self, frame: torch.Tensor | None = None, policy_features: Any = None) -> float:
         if not self._started:
             raise RuntimeError("lstm_ed: call reset() before step()")
-        from aed_models.nn import lstm_step
-
         out, self._state = lstm_step(self.lstm, self.encoder(check_frame(frame, self.name)), self._state)
         return float(torch.sigmoid(self.classifier(out))[0, 0])
