@@ -208,7 +208,7 @@ def _read_rows(dataset: Any, rows: np.ndarray) -> np.ndarray:
 
 def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
     """Pad to the longest: frames (B, L, 4, H, W), labels (B, L), actions (B, L, A), lengths (B,),
-    mask (B, L), and proprio (B, L, PROPRIO_DIM) and subgoal (B, L, 3) when every sequence has them."""
+    mask (B, L), source (B, L) (each frame's index in its episode), and proprio (B, L, PROPRIO_DIM) and subgoal (B, L, 3) when every sequence has them."""
     if not seqs:
         return {}
     lengths = torch.tensor([len(s) for s in seqs], dtype=torch.int64)
@@ -217,13 +217,14 @@ def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
     frames = torch.empty((len(seqs), longest, 4, height, width), dtype=torch.float32)
     labels = torch.zeros(len(seqs), longest)
     actions = torch.zeros(len(seqs), longest, seqs[0].actions.shape[1])
+    source = torch.zeros(len(seqs), longest, dtype=torch.int64)
     for i, s in enumerate(seqs):
         n = len(s)
         to_frames(s.rgb, s.depth, out=frames[i, :n])
         frames[i, n:] = 0.0
-        labels[i, :n], actions[i, :n] = s.labels, s.actions
+        labels[i, :n], actions[i, :n], source[i, :n] = s.labels, s.actions, s.source
     mask = torch.arange(longest)[None] < lengths[:, None]
-    batch = {"frames": frames, "labels": labels, "actions": actions, "lengths": lengths, "mask": mask}
+    batch = {"frames": frames, "labels": labels, "actions": actions, "lengths": lengths, "mask": mask, "source": source}
     for key in ("proprio", "subgoal"):
         if all(getattr(s, key) is not None for s in seqs):
             batch[key] = torch.zeros(len(seqs), longest, getattr(seqs[0], key).shape[-1])

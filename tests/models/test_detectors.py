@@ -183,6 +183,42 @@ def test_svdd_variance_floor_penalises_a_collapsed_embedding():
     assert "variance_floor" not in make_detector("svdd_ed", **TINY["svdd_ed"], variance_weight=0.0).loss(batch)[1]
 
 
+
+def test_svdd_aligned_centres_follow_the_demonstrations_in_time():
+    from aed_models.nn import encode_frames
+
+    batch, _ = make_batch()
+    demos = batch["demos"]  # lengths 5 and 4
+    detector = tiny("svdd_ed").eval()
+    with torch.no_grad():
+        z = encode_frames(detector.encoder, demos["frames"], demos["mask"])
+        centres = detector.centres(demos)
+        assert centres.shape == (5, z.shape[-1])
+        torch.testing.assert_close(centres[2], (z[0, 2] + z[1, 2]) / 2)
+        torch.testing.assert_close(centres[4], (z[0, 4] + z[1, 3]) / 2)  # the shorter one is held at its end
+        # subsampled demonstrations (training): each contributes its latest kept frame at or before t
+        kept = {**demos, "source": torch.tensor([[0, 2, 4, 0, 0], [0, 3, 0, 0, 0]]),
+                "mask": torch.tensor([[True, True, True, False, False], [True, True, False, False, False]])}  # fmt: skip
+        sub = detector.centres(kept)
+        zk = encode_frames(detector.encoder, demos["frames"], kept["mask"])
+        torch.testing.assert_close(sub[1], (zk[0, 0] + zk[1, 0]) / 2)
+        torch.testing.assert_close(sub[3], (zk[0, 1] + zk[1, 1]) / 2)
+        torch.testing.assert_close(sub[4], (zk[0, 2] + zk[1, 1]) / 2)
+        # the distance takes the nearest centre within `window` steps (rollouts run at their own pace)
+        step2 = torch.tensor([2])
+        assert float(detector.distance(centres[3][None], step2, centres)) == 0.0  # tiny window: 10
+        exact = make_detector("svdd_ed", **TINY["svdd_ed"], window=0)
+        assert float(exact.distance(centres[3][None], step2, centres)) > 0.0
+        torch.testing.assert_close(exact.distance(centres[4][None], torch.tensor([9]), centres), torch.zeros(1))  # past the end: the last
+        single = make_detector("svdd_ed", **TINY["svdd_ed"], centre="all")
+        single.load_state_dict(detector.state_dict())
+        torch.testing.assert_close(single.eval().centres(demos), z[demos["mask"]].mean(0, keepdim=True))
+    with pytest.raises(ValueError, match="centre='middle'"):
+        make_detector("svdd_ed", centre="middle")
+    with pytest.raises(ValueError, match="window=-1"):
+        make_detector("svdd_ed", window=-1)
+
+
 # -- training loop and feature cache on a tiny synthetic collection (no simulation) -----------
 
 

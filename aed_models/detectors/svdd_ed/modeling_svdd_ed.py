@@ -1,8 +1,12 @@
 """SVDDED: deep one-class SVDD (Ruff et al. 2018) centred on the demonstrations.
 
-Each frame is embedded by a visual head; the centre c is the mean embedding of the
-environment's demonstration frames; the score of a frame is its distance to c. Training
-pulls the frames of successful rollouts towards c (no failures seen).
+Each frame is embedded by a visual head; the centre is the mean embedding of the environment's
+demonstration frames; the score of a frame is its distance to the centre. Training pulls the
+frames of successful rollouts towards it (no failures seen). With `centre="aligned"` (the
+default) the centre follows the demonstrations in time: frame t is measured against the mean
+of the demonstrations' embeddings at step t (the nearest of those within `window` steps, as
+rollouts run slower or faster than the demonstrations), so a normal frame of one stage is not
+compared with the average of every stage (see `SVDDEDConfig.centre`).
 
 Against the trivial collapse (every frame mapped to one point, distance 0 for all):
 
@@ -41,17 +45,46 @@ class SVDDED(ErrorDetector):
             if name.endswith("bias"):
                 param.data.zero_()
                 param.requires_grad_(False)
-        self._centre: torch.Tensor | None = None
+        self._centres: torch.Tensor | None = None
+        self._t = 0
 
-    def centre(self, demos: Batch) -> torch.Tensor:
-        """(D,) mean embedding of all valid demonstration frames."""
+    def centres(self, demos: Batch) -> torch.Tensor:
+        """(S, D) centres: row t is the centre of frame t (frames past S - 1 use the last row).
+
+        `all`: one row, the mean of every valid demonstration frame. `aligned`: row t is the
+        mean over the demonstrations of their embedding at step t, each held at its last frame
+        once it has ended; a demonstration subsampled in training (`source`, the frames'
+        indices in their episode) contributes its latest kept frame at or before t.
+        """
         from aed_models.nn import encode_frames
 
         frames, mask = demo_mask(demos, self.name)
-        return encode_frames(self.encoder, frames, mask)[mask].mean(0)
+        embeddings = encode_frames(self.encoder, frames, mask)
+        if self.config.centre == "all":
+            return embeddings[mask].mean(0, keepdim=True)
+        source = demos.get("source")
+        if source is None:
+            source = torch.arange(mask.shape[1], device=mask.device).expand_as(mask)
+        source = torch.where(mask, source, torch.iinfo(torch.int64).max)  # padding is never "at or before t"
+        steps = torch.arange(int(source[mask].max()) + 1, device=mask.device)
+        latest = torch.searchsorted(source.contiguous(), steps.expand(len(source), -1).contiguous(), right=True) - 1
+        latest = latest.clamp(min=0)  # a demonstration's first kept frame stands for the steps before it
+        picked = embeddings.gather(1, latest[..., None].expand(-1, -1, embeddings.shape[-1]))
+        return picked.mean(0)
 
-    def distance(self, embeddings: torch.Tensor, centre: torch.Tensor) -> torch.Tensor:
-        return (embeddings - centre).pow(2).sum(-1) / (centre.pow(2).sum() + self.config.eps)
+    def distance(self, embeddings: torch.Tensor, steps: torch.Tensor, centres: torch.Tensor) -> torch.Tensor:
+        """Scale-free squared distance of each embedding (..., D) at step `steps` (...) to its
+        centre: the nearest of the centres of steps t - window .. t + window (`aligned`)."""
+        last = len(centres) - 1
+        offsets = torch.arange(-self.config.window, self.config.window + 1, device=steps.device)
+        rows = (steps.clamp(max=last)[..., None] + offsets).clamp(0, last)  # (..., 2 * window + 1)
+        squared = (embeddings[..., None, :] - centres[rows]).pow(2).sum(-1).amin(-1)
+        return squared / (centres.pow(2).sum(-1).mean() + self.config.eps)
+
+    @staticmethod
+    def _steps(rollouts: Batch, mask: torch.Tensor) -> torch.Tensor:
+        source = rollouts.get("source")
+        return source if source is not None else torch.arange(mask.shape[1], device=mask.device).expand_as(mask)
 
     def loss(self, batch: Batch, policy_features: Any = None) -> tuple[torch.Tensor, dict[str, float]]:
         from aed_models.nn import encode_frames
@@ -62,9 +95,10 @@ class SVDDED(ErrorDetector):
             mask = mask & ~rollouts["is_failure"].bool()[:, None]
         if not mask.any():
             raise ValueError("svdd_ed trains on successes: the batch has no successful rollout frame")
-        centre = self.centre(batch["demos"]).detach()
+        with torch.no_grad():  # a fixed target per iteration, as Ruff et al. fix c
+            centres = self.centres(batch["demos"])
         embeddings = encode_frames(self.encoder, rollouts["frames"], mask)[mask]
-        svdd = self.distance(embeddings, centre).mean()
+        svdd = self.distance(embeddings, self._steps(rollouts, mask)[mask], centres).mean()
         parts = {"svdd": float(svdd.detach())}
         loss = svdd
         if self.config.variance_weight > 0 and len(embeddings) > 1:
@@ -79,14 +113,16 @@ class SVDDED(ErrorDetector):
 
         mask = rollout_mask(rollouts)
         embeddings = encode_frames(self.encoder, rollouts["frames"], mask)
-        return self.distance(embeddings, self.centre(demos)) * mask
+        return self.distance(embeddings, self._steps(rollouts, mask), self.centres(demos)) * mask
 
     @torch.no_grad()
     def reset(self, demos: Batch | None = None) -> None:
-        self._centre = self.centre(demos)
+        self._centres, self._t = self.centres(demos), 0
 
     @torch.no_grad()
     def step(self, frame: torch.Tensor | None = None, policy_features: Any = None) -> float:
-        self._require_reset(self._centre)
+        self._require_reset(self._centres)
         embedding = self.encoder(check_frame(frame, self.name))[0]
-        return float(self.distance(embedding, self._centre))
+        score = float(self.distance(embedding, torch.tensor(self._t), self._centres))
+        self._t += 1
+        return score
