@@ -208,7 +208,8 @@ def _read_rows(dataset: Any, rows: np.ndarray) -> np.ndarray:
 
 def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
     """Pad to the longest: frames (B, L, 4, H, W), labels (B, L), actions (B, L, A), lengths (B,),
-    mask (B, L), source (B, L) (each frame's index in its episode), and proprio (B, L, PROPRIO_DIM) and subgoal (B, L, 3) when every sequence has them."""
+    mask (B, L), source (B, L) (each frame's index in its episode), and proprio (B, L, PROPRIO_DIM)
+    and subgoal (B, L, 3) when every sequence has them."""
     if not seqs:
         return {}
     lengths = torch.tensor([len(s) for s in seqs], dtype=torch.int64)

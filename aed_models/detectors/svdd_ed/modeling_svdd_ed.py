@@ -62,10 +62,7 @@ class SVDDED(ErrorDetector):
         embeddings = encode_frames(self.encoder, frames, mask)
         if self.config.centre == "all":
             return embeddings[mask].mean(0, keepdim=True)
-        source = demos.get("source")
-        if source is None:
-            source = torch.arange(mask.shape[1], device=mask.device).expand_as(mask)
-        source = torch.where(mask, source, torch.iinfo(torch.int64).max)  # padding is never "at or before t"
+        source = torch.where(mask, self._steps(demos, mask), torch.iinfo(torch.int64).max)  # padding is never "at or before t"
         steps = torch.arange(int(source[mask].max()) + 1, device=mask.device)
         latest = torch.searchsorted(source.contiguous(), steps.expand(len(source), -1).contiguous(), right=True) - 1
         latest = latest.clamp(min=0)  # a demonstration's first kept frame stands for the steps before it
@@ -82,8 +79,10 @@ class SVDDED(ErrorDetector):
         return squared / (centres.pow(2).sum(-1).mean() + self.config.eps)
 
     @staticmethod
-    def _steps(rollouts: Batch, mask: torch.Tensor) -> torch.Tensor:
-        source = rollouts.get("source")
+    def _steps(sequences: Batch, mask: torch.Tensor) -> torch.Tensor:
+        """(B, L) step of each frame in its episode: `source` where the batch keeps it (frames
+        subsampled or augmented in training), else the frame's position."""
+        source = sequences.get("source")
         return source if source is not None else torch.arange(mask.shape[1], device=mask.device).expand_as(mask)
 
     def loss(self, batch: Batch, policy_features: Any = None) -> tuple[torch.Tensor, dict[str, float]]:
