@@ -36,7 +36,7 @@ from tqdm import tqdm
 from aed_models.augment import RolloutAugment
 from aed_models.checkpoint import file_sha256, load_checkpoint, save_checkpoint
 from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampler, load_episodes
-from aed_models.detectors import DETECTORS, FAMILY, detector_config, make_detector
+from aed_models.detectors import DETECTORS, FAMILY, config_from_dict, detector_config, make_detector
 from aed_models.detectors.base import to_device
 from aed_models.train.feature_cache import FeatureCache, FeatureIterations
 from aed_models.train.policy import resolve_schedule, seed_everything, select_environments
@@ -227,7 +227,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
         if ckpt.extra.get("policy_sha256") != policy_sha:
             raise ValueError(f"{last_path}: trained on policy {ckpt.extra.get('policy_sha256')}, not {policy_sha}; "
                              "use another out folder or resume=False")  # fmt: skip
-        if ckpt.config != detector.config_dict():
+        if config_from_dict(cfg.detector, ckpt.config) != detector.config:  # fields added since: their defaults
             raise ValueError(f"{last_path}: trained with another {cfg.detector} config ({ckpt.config}); "
                              "pass --no-resume or another --out")  # fmt: skip
         detector.load_state_dict(ckpt.state_dict)

@@ -291,21 +291,24 @@ class FeatureIterations(Dataset):
                     indices = self.augment.indices(ref.num_frames, rng)
                 keep = subsample(indices, self.max_frames)
                 ep = self.cache.load(ref)
-                seqs.append((ep.history[keep], ep.task[keep], ep.labels[keep]))
+                seqs.append((ep.history[keep], ep.task[keep], ep.labels[keep], keep))
                 failures.append(role == "agent_failure")
         return {"env_index": env_index, "epoch": epoch, **_pad_features(seqs, failures)}
 
 
-def _pad_features(seqs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], failures: list[bool]) -> dict[str, Any]:
+def _pad_features(seqs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], failures: list[bool]) -> dict[str, Any]:
+    """Padded (history, task, labels, source frame index) sequences: the rollouts dict and features."""
     lengths = torch.tensor([len(s[0]) for s in seqs], dtype=torch.int64)
     longest = int(lengths.max())
     b = len(seqs)
     history = torch.zeros(b, longest, seqs[0][0].shape[1])
     task = torch.zeros(b, longest, seqs[0][1].shape[1])
     labels = torch.zeros(b, longest)
-    for i, (h, z, y) in enumerate(seqs):
+    source = torch.zeros(b, longest, dtype=torch.int64)
+    for i, (h, z, y, s) in enumerate(seqs):
         n = len(h)
         history[i, :n], task[i, :n], labels[i, :n] = torch.from_numpy(h), torch.from_numpy(z), torch.from_numpy(y)
+        source[i, :n] = torch.from_numpy(np.asarray(s, dtype=np.int64))
     mask = torch.arange(longest)[None] < lengths[:, None]
-    rollouts = {"mask": mask, "lengths": lengths, "labels": labels, "is_failure": torch.tensor(failures)}
+    rollouts = {"mask": mask, "lengths": lengths, "labels": labels, "is_failure": torch.tensor(failures), "source": source}
     return {"rollouts": rollouts, "features": (history, task)}

@@ -28,7 +28,7 @@ TINY = {
     "lstm_ed": {**TINY_VISUAL, "hidden_dim": 16, "head_dim": 8},
     "dct_ed": {**TINY_VISUAL, "num_heads": 2, "ff_dim": 32, "encoder_layers": 1, "decoder_layers": 2},
     "probe": {"history_dim": DH, "task_dim": DZ, "hidden_dim": 16, "embed_dim": 8, "triplets_per_rollout": 4},
-    "rnd_oe": {"history_dim": DH, "hidden_dim": 16, "out_dim": 8},
+    "rnd_oe": {"history_dim": DH, "hidden_dim": 16, "out_dim": 8, "time_bin": 2, "max_steps": 12, "baseline_steps": 3},
 }
 
 
@@ -219,6 +219,20 @@ def test_svdd_aligned_centres_follow_the_demonstrations_in_time():
         make_detector("svdd_ed", window=-1)
 
 
+@pytest.mark.parametrize("name", ["svdd_ed", "taskemb_ed", "rnd_oe"])
+def test_detectors_without_memory_score_the_running_max_of_their_frames(name):
+    batch, features = make_batch()
+    rollouts, demos = batch["rollouts"], batch["demos"]
+    detector = tiny(name).eval()
+    per_frame = make_detector(name, **TINY[name], running_max=False).eval()
+    per_frame.load_state_dict(detector.state_dict())
+    raw, scores = per_frame.score(rollouts, demos, features), detector.score(rollouts, demos, features)
+    assert not torch.equal(raw, scores)  # the frames' scores are not already sorted
+    for i, length in enumerate(rollouts["lengths"].tolist()):
+        torch.testing.assert_close(scores[i, :length], torch.cummax(raw[i, :length], 0).values)
+    assert (scores[~rollouts["mask"]] == 0).all()
+
+
 # -- training loop and feature cache on a tiny synthetic collection (no simulation) -----------
 
 
@@ -353,17 +367,47 @@ def test_feature_iterations_follow_the_frame_iterations(collection, tiny_policy,
         assert history.shape[:2] == a["rollouts"]["mask"].shape and (history[~a["rollouts"]["mask"]] == 0).all()
 
 
-def test_rnd_oe_scores_are_relative_to_the_training_error():
+def test_rnd_oe_calibrates_errors_by_the_training_successes_at_each_step():
+    """One bias-corrected update: each bin's scale is the mean success error in that bin, so
+    calibrated success errors average 1 per bin; bins no success reached take the bin before."""
+    rnd = make_detector("rnd_oe", **{**TINY["rnd_oe"], "baseline_steps": 0, "running_max": False})
+    batch, features = make_batch()
+    rollouts = batch["rollouts"]
+    assert float(rnd.error_scale) == 1.0 and (rnd.time_scale == 1.0).all()  # untrained: raw errors
+    rnd.train()
+    loss, _ = rnd.loss(batch, features)
+    rnd.eval()
+    assert float(rnd.error_scale) == pytest.approx(float(loss.detach()), rel=1e-6)
+    scores = rnd.score(rollouts, batch["demos"], features)
+    successes = rollouts["mask"] & ~rollouts["is_failure"][:, None]
+    bins = torch.arange(scores.shape[1]).expand_as(scores) // 2
+    for b in bins[successes].unique().tolist():
+        assert scores[successes & (bins == b)].mean().item() == pytest.approx(1.0, rel=1e-5), b
+    last_seen = int(bins[successes].max())  # successes of 7 and 5 frames: steps 0-6, bins 0-3
+    assert (rnd.time_scale[last_seen:] == rnd.time_scale[last_seen]).all()
+    assert rnd.time_scale[:last_seen].unique().numel() == last_seen
+
+
+def test_rnd_oe_scores_the_running_max_of_errors_over_the_rollouts_own_start():
     rnd = tiny("rnd_oe")
     batch, features = make_batch()
-    assert float(rnd.error_scale) == 1.0  # untrained: raw errors
     rnd.train()
-    loss, _ = rnd.loss(batch, features)  # one bias-corrected update: the scale is this loss
+    rnd.loss(batch, features)  # a trained time calibration, so that online meets it too
     rnd.eval()
-    scores = rnd.score(batch["rollouts"], batch["demos"], features)
-    successes = batch["rollouts"]["mask"] & ~batch["rollouts"]["is_failure"][:, None]
-    assert scores[successes].mean().item() == pytest.approx(1.0, rel=1e-5)
-    assert float(rnd.error_scale) == pytest.approx(float(loss.detach()), rel=1e-6)
+    rollouts, k = batch["rollouts"], rnd.config.baseline_steps
+    calibrated = rnd.calibrated(features[0], torch.arange(rollouts["mask"].shape[1]).expand_as(rollouts["mask"]))
+    scores = rnd.score(rollouts, batch["demos"], features)
+    for i, length in enumerate(rollouts["lengths"].tolist()):
+        c = calibrated[i, :length].tolist()
+        ratios = [c[t] / (sum(c[: min(t + 1, k)]) / min(t + 1, k)) for t in range(length)]
+        expected = torch.tensor([max(ratios[: t + 1]) for t in range(length)])
+        torch.testing.assert_close(scores[i, :length], expected, atol=1e-5, rtol=1e-5)
+        rnd.reset(batch["demos"])
+        online = [rnd.step(None, (features[0][i, t], features[1][i, t])) for t in range(length)]
+        torch.testing.assert_close(torch.tensor(online), scores[i, :length], atol=1e-5, rtol=0)
+    assert (scores[:, 1:] >= scores[:, :-1])[rollouts["mask"][:, 1:]].all()
+    with pytest.raises(ValueError, match="time_bin"):
+        make_detector("rnd_oe", time_bin=-1)
 
 
 def test_rnd_oe_whitens_its_inputs_with_the_statistics_of_every_training_frame():

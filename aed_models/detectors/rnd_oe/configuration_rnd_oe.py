@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from aed_models.detectors.base import check_profile, positive
+from aed_models.detectors.base import check_profile, nonnegative, positive
 
 
 @dataclass
@@ -15,10 +15,18 @@ class RNDOEConfig:
         history_dim: size of the policy's f_h (set from the policy).
         hidden_dim: hidden width of the target and predictor MLPs.
         out_dim: size of the random target's output.
-        scale_momentum: momentum of the running mean of the training (success) error that
-            scores are divided by, so that ~1 means "as familiar as training successes".
+        scale_momentum: momentum of the running means of the training (success) error that
+            errors are divided by, so that ~1 means "as familiar as training successes".
         norm_eps: epsilon of the unit norm of f_h and of the whitening.
         input_clip: whitened inputs are clipped to +-input_clip (RND's 5).
+        time_bin: steps per bin of the time-varying calibration: an error at step t is divided
+            by the training successes' mean error in t's bin; 0 = one mean for every step.
+        max_steps: steps the calibration table covers; later steps use its last bin.
+        baseline_steps: the calibrated error is divided by its mean over the rollout's own
+            first `baseline_steps` frames (the new environment's familiarity, before any
+            error); 0 = no baseline.
+        running_max: score the running maximum over the frames so far (an error, once seen,
+            persists: a rollout that has left the successes' states stays flagged).
     """
 
     history_dim: int = 256
@@ -27,12 +35,22 @@ class RNDOEConfig:
     scale_momentum: float = 0.99
     norm_eps: float = 1e-5
     input_clip: float = 5.0
+    time_bin: int = 5
+    max_steps: int = 400
+    baseline_steps: int = 10
+    running_max: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("history_dim", "hidden_dim", "out_dim", "norm_eps", "input_clip"):
+        for name in ("history_dim", "hidden_dim", "out_dim", "norm_eps", "input_clip", "max_steps"):
             positive(name, getattr(self, name))
         if not 0.0 <= self.scale_momentum < 1.0:
             raise ValueError(f"scale_momentum={self.scale_momentum}: must lie in [0, 1)")
+        nonnegative("time_bin", self.time_bin)
+        nonnegative("baseline_steps", self.baseline_steps)
+
+    @property
+    def num_time_bins(self) -> int:
+        return -(-self.max_steps // self.time_bin) if self.time_bin else 1
 
     @classmethod
     def for_profile(cls, profile: str) -> RNDOEConfig:

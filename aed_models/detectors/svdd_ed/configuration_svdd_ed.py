@@ -27,6 +27,10 @@ class SVDDEDConfig(VisualDetectorConfig):
         window: `aligned`: frame t is measured against the nearest of the centres of steps
             t - window .. t + window: the agents run about 20% slower than the demonstrations
             on Press Button (87 vs 70 steps), so step t of a rollout is not step t of a demo.
+        running_max: score the running maximum of the distance over the frames so far, the
+            farthest the rollout has been from the demonstrations
+            (`aed_models.detectors.base.running_max`: a single-frame detector cannot learn that
+            an error persists).
         eps: added to the centres' mean squared norm in the scale-free distance.
         variance_weight: weight of a variance floor on the embeddings (VICReg's hinge on each
             dimension's standard deviation over the iteration's frames, target 1; 25 as VICReg's
@@ -40,6 +44,7 @@ class SVDDEDConfig(VisualDetectorConfig):
     dropout: float = 0.0
     centre: str = "aligned"
     window: int = 10
+    running_max: bool = True
     eps: float = 1e-6
     variance_weight: float = 25.0
 

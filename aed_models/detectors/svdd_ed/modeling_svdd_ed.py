@@ -6,7 +6,8 @@ frames of successful rollouts towards it (no failures seen). With `centre="align
 default) the centre follows the demonstrations in time: frame t is measured against the mean
 of the demonstrations' embeddings at step t (the nearest of those within `window` steps, as
 rollouts run slower or faster than the demonstrations), so a normal frame of one stage is not
-compared with the average of every stage (see `SVDDEDConfig.centre`).
+compared with the average of every stage (see `SVDDEDConfig.centre`). The score is the running
+maximum of that distance (`SVDDEDConfig.running_max`): an error, once seen, persists.
 
 Against the trivial collapse (every frame mapped to one point, distance 0 for all):
 
@@ -25,7 +26,15 @@ from typing import Any
 
 import torch
 
-from aed_models.detectors.base import Batch, ErrorDetector, check_frame, demo_mask, rollout_mask
+from aed_models.detectors.base import (
+    Batch,
+    ErrorDetector,
+    check_frame,
+    demo_mask,
+    rollout_mask,
+    running_max,
+    steps_of,
+)
 from aed_models.detectors.svdd_ed.configuration_svdd_ed import SVDDEDConfig
 
 
@@ -46,7 +55,7 @@ class SVDDED(ErrorDetector):
                 param.data.zero_()
                 param.requires_grad_(False)
         self._centres: torch.Tensor | None = None
-        self._t = 0
+        self._t, self._max = 0, 0.0
 
     def centres(self, demos: Batch) -> torch.Tensor:
         """(S, D) centres: row t is the centre of frame t (frames past S - 1 use the last row).
@@ -62,7 +71,7 @@ class SVDDED(ErrorDetector):
         embeddings = encode_frames(self.encoder, frames, mask)
         if self.config.centre == "all":
             return embeddings[mask].mean(0, keepdim=True)
-        source = torch.where(mask, self._steps(demos, mask), torch.iinfo(torch.int64).max)  # padding is never "at or before t"
+        source = torch.where(mask, steps_of(demos, mask), torch.iinfo(torch.int64).max)  # padding is never "at or before t"
         steps = torch.arange(int(source[mask].max()) + 1, device=mask.device)
         latest = torch.searchsorted(source.contiguous(), steps.expand(len(source), -1).contiguous(), right=True) - 1
         latest = latest.clamp(min=0)  # a demonstration's first kept frame stands for the steps before it
@@ -78,13 +87,6 @@ class SVDDED(ErrorDetector):
         squared = (embeddings[..., None, :] - centres[rows]).pow(2).sum(-1).amin(-1)
         return squared / (centres.pow(2).sum(-1).mean() + self.config.eps)
 
-    @staticmethod
-    def _steps(sequences: Batch, mask: torch.Tensor) -> torch.Tensor:
-        """(B, L) step of each frame in its episode: `source` where the batch keeps it (frames
-        subsampled or augmented in training), else the frame's position."""
-        source = sequences.get("source")
-        return source if source is not None else torch.arange(mask.shape[1], device=mask.device).expand_as(mask)
-
     def loss(self, batch: Batch, policy_features: Any = None) -> tuple[torch.Tensor, dict[str, float]]:
         from aed_models.nn import encode_frames
 
@@ -97,7 +99,7 @@ class SVDDED(ErrorDetector):
         with torch.no_grad():  # a fixed target per iteration, as Ruff et al. fix c
             centres = self.centres(batch["demos"])
         embeddings = encode_frames(self.encoder, rollouts["frames"], mask)[mask]
-        svdd = self.distance(embeddings, self._steps(rollouts, mask)[mask], centres).mean()
+        svdd = self.distance(embeddings, steps_of(rollouts, mask)[mask], centres).mean()
         parts = {"svdd": float(svdd.detach())}
         loss = svdd
         if self.config.variance_weight > 0 and len(embeddings) > 1:
@@ -112,16 +114,19 @@ class SVDDED(ErrorDetector):
 
         mask = rollout_mask(rollouts)
         embeddings = encode_frames(self.encoder, rollouts["frames"], mask)
-        return self.distance(embeddings, self._steps(rollouts, mask), self.centres(demos)) * mask
+        distances = self.distance(embeddings, steps_of(rollouts, mask), self.centres(demos)) * mask
+        return running_max(distances, mask) if self.config.running_max else distances
 
     @torch.no_grad()
     def reset(self, demos: Batch | None = None) -> None:
-        self._centres, self._t = self.centres(demos), 0
+        self._centres, self._t, self._max = self.centres(demos), 0, 0.0
 
     @torch.no_grad()
     def step(self, frame: torch.Tensor | None = None, policy_features: Any = None) -> float:
         self._require_reset(self._centres)
         embedding = self.encoder(check_frame(frame, self.name))[0]
         score = float(self.distance(embedding, torch.tensor(self._t), self._centres))
+        if self.config.running_max:
+            score = self._max = max(self._max, score)  # distances are >= 0: 0 is a neutral start
         self._t += 1
         return score

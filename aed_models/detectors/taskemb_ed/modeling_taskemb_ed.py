@@ -2,7 +2,8 @@
 
 Task embedding (NaiveDC, James et al. 2018): per demonstration, the features of its first
 and last frames concatenated, averaged over the demonstrations. No temporal information: the
-score of a frame depends on that frame and the demonstrations only.
+probability of a frame depends on that frame and the demonstrations only; the score is its
+running maximum over the frames so far (`TaskEmbEDConfig.running_max`).
 """
 
 from __future__ import annotations
@@ -12,7 +13,14 @@ from typing import Any
 import torch
 from torch import nn
 
-from aed_models.detectors.base import Batch, ErrorDetector, check_frame, demo_mask, rollout_mask
+from aed_models.detectors.base import (
+    Batch,
+    ErrorDetector,
+    check_frame,
+    demo_mask,
+    rollout_mask,
+    running_max,
+)
 from aed_models.detectors.taskemb_ed.configuration_taskemb_ed import TaskEmbEDConfig
 from aed_models.losses import masked_bce
 
@@ -36,6 +44,7 @@ class TaskEmbED(ErrorDetector):
             width = h
         self.classifier = nn.Sequential(*layers, nn.Linear(width, 1))
         self._task: torch.Tensor | None = None
+        self._max = 0.0
 
     def task_embedding(self, demos: Batch) -> torch.Tensor:
         """(2 D,) mean over demonstrations of [first frame feature, last frame feature]."""
@@ -63,14 +72,19 @@ class TaskEmbED(ErrorDetector):
 
     @torch.no_grad()
     def score(self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None) -> torch.Tensor:
-        return torch.sigmoid(self._batch_logits(rollouts, demos)) * rollout_mask(rollouts)
+        mask = rollout_mask(rollouts)
+        probabilities = torch.sigmoid(self._batch_logits(rollouts, demos)) * mask
+        return running_max(probabilities, mask) if self.config.running_max else probabilities
 
     @torch.no_grad()
     def reset(self, demos: Batch | None = None) -> None:
-        self._task = self.task_embedding(demos)
+        self._task, self._max = self.task_embedding(demos), 0.0
 
     @torch.no_grad()
     def step(self, frame: torch.Tensor | None = None, policy_features: Any = None) -> float:
         self._require_reset(self._task)
         feats = self.encoder(check_frame(frame, self.name))
-        return float(torch.sigmoid(self.logits(feats, self._task))[0])
+        probability = float(torch.sigmoid(self.logits(feats, self._task))[0])
+        if self.config.running_max:
+            probability = self._max = max(self._max, probability)
+        return probability
