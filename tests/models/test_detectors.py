@@ -290,9 +290,9 @@ def test_train_detector_config_profiles_and_composition(collection):
 
     mini, paper = TrainDetectorConfig(detector="lstm_ed"), TrainDetectorConfig(detector="lstm_ed", profile="paper")
     assert (mini.lr, mini.weight_decay, paper.lr, paper.weight_decay) == (3e-4, 0.0, 1e-4, 1e-2)
-    assert (mini.composition, mini.epochs, mini.num_envs, paper.composition) == ((3, 4, 4), 10, None, None)
+    assert (mini.composition, mini.epochs, mini.num_envs, paper.composition) == ((3, 4, 4), 30, None, None)
     single = TrainDetectorConfig(detector="taskemb_ed")
-    assert (single.max_frames, single.epochs, mini.max_frames) == (8, 50, 0)  # temporal detectors: every frame
+    assert (single.max_frames, single.epochs, mini.max_frames) == (8, 150, 0)  # temporal detectors: every frame
     assert TrainDetectorConfig(detector="probe", policy="dct").composition is None  # cached features: the paper's
     episodes = load_episodes(collection)
     for name, expected in (("lstm_ed", Composition(2, 3, 1)), ("svdd_ed", Composition(2, 4, 0))):
