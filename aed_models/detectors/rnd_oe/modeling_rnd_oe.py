@@ -3,8 +3,7 @@
 A fixed, randomly initialised target MLP maps each f_h[t] to a vector; a predictor MLP learns
 to reproduce it on the frames of *successful* rollouts only. Where the policy's internal state
 looks like the successes it was fitted on, the prediction error is small; unfamiliar states (a
-behaviour error, a new failure mode) give a large error. No failure data is needed, and every
-frame is scored on its own (O(1) per step).
+behaviour error, a new failure mode) give a large error. No failure data is needed.
 
 Input normalisation (as in Burda et al.'s RND): f_h is unit-normalised, then whitened per
 dimension by the running mean and variance of the training frames and clipped to +-5. Without
@@ -174,8 +173,9 @@ class RNDOE(ErrorDetector):
         k = self.config.baseline_steps
         if k:
             positions = torch.arange(mask.shape[1], device=mask.device)
-            seen = torch.cumsum(score, dim=1)[:, positions.clamp(max=k - 1)]
-            score = score / (seen / (positions.clamp(max=k - 1) + 1)).clamp(min=1e-12)
+            first = positions.clamp(max=k - 1)  # the baseline's last frame so far
+            baseline = torch.cumsum(score, dim=1)[:, first] / (first + 1)
+            score = score / baseline.clamp(min=1e-12)
         if self.config.running_max:
             score = running_max(score, mask)
         return score * mask
