@@ -52,7 +52,7 @@ MINI = {"epochs": 20, "num_envs": None, "lr": 3e-4, "weight_decay": 0.0}  # lr a
 # episode; temporal ones see every frame, so that they meet online the frame rate they were
 # trained at. PrObe and RND-OE read cached features: the paper's composition costs little.
 # Epochs: until the training loss flattens. TaskEmbED's was still falling at 50 (Pick & Place,
-# 18 environments: 0.45 at 50, 0.14 from ~110 on; held out 0.66 -> 0.72, Press Button 0.82 ->
+# 18 environments: 0.45 at 50, 0.10-0.15 from ~110 on; held out 0.66 -> 0.72, Press Button 0.82 ->
 # 0.79); LSTMED's sat at the base rate for 10 epochs on Pick & Place, then fell (0.59 -> 0.50
 # at 30).
 MINI_EPOCHS = {"svdd_ed": 50, "taskemb_ed": 150, "lstm_ed": 30, "dct_ed": 8, "probe": 30, "rnd_oe": 30}
