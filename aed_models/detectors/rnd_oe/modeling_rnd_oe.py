@@ -73,8 +73,7 @@ class RNDOE(ErrorDetector):
         self.register_buffer("input_count", torch.zeros(()))
         self.register_buffer("input_mean", torch.zeros(c.history_dim))
         self.register_buffer("input_var", torch.ones(c.history_dim))
-        self._started = False
-        self._step_scale: torch.Tensor | None = None  # time_scale, fixed at reset()
+        self._step_scale: torch.Tensor | None = None  # time_scale, fixed at reset(); None before
         self._t, self._baseline_sum, self._max = 0, 0.0, 0.0
 
     def _unit(self, history: torch.Tensor) -> torch.Tensor:
@@ -181,14 +180,12 @@ class RNDOE(ErrorDetector):
         return score * mask
 
     def reset(self, demos: Batch | None = None) -> None:
-        self._started = True
         self._step_scale = self.time_scale
         self._t, self._baseline_sum, self._max = 0, 0.0, 0.0
 
     @torch.no_grad()
     def step(self, frame: torch.Tensor | None = None, policy_features: tuple[torch.Tensor, torch.Tensor] | None = None) -> float:
-        if not self._started:
-            raise RuntimeError("rnd_oe: call reset(demos) before step()")
+        self._require_reset(self._step_scale)
         f_h, _ = split_features(policy_features)
         bin_ = int(self._bins(torch.tensor(self._t)))
         score = float(self.errors(f_h.reshape(1, -1))[0] / self._step_scale[bin_])
