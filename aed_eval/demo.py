@@ -3,14 +3,17 @@
 Stages, each reusing what an earlier run finished (collections and rollouts resume shard by
 shard, training resumes from its last epoch):
 
-1. collect the base split: demonstrations, agent successes and labelled agent failures
-   (`aed collect`), in training environments plus held-out calibration environments;
-2. phase 1: train the policies (`aed train-policy`);
+1. collect the base split (`aed collect`): demonstrations, agent successes and labelled agent
+   failures in the training environments; demonstrations and a few expert successes in the
+   held-out calibration environments, which no model trains on;
+2. phase 1: train the policies (`aed train-policy`) on the training environments;
 3. phase 2: train the detectors (`aed train-detector`; PrObe and rnd_oe once per policy);
 4. collect the novel split: the environments' demonstrations, and labelled expert episodes
    (successes and injected failures) for the delay metrics;
-5. phase 3: roll every policy out in the novel environments (`aed rollout`);
-6. calibrate every detector's threshold on held-out base successes (`aed calibrate`);
+5. phase 3: roll every policy out in the novel environments, and in the calibration
+   environments (`aed rollout`; every rollout runs the task's horizon);
+6. calibrate every detector's thresholds on the policy's successful calibration rollouts, and
+   on the expert's successes there for comparison (`aed calibrate`);
 7. score the rollouts and compute the metrics (`aed evaluate`), then the report (`aed report`).
 
 Under `--profile mini` (the default) the models have the `mini` sizes but the counts are the
@@ -30,22 +33,26 @@ from typing import Annotated, Any, Literal
 
 import tyro
 
-from aed_eval.checks import task_class
+from aed_eval.checks import check_detectors, task_class
 from aed_eval.layout import RunLayout
 from aed_eval.scoring import DETECTOR_NAMES
 
 logger = logging.getLogger(__name__)
 
 
-# Counts per profile. `mini` is the demo's CPU default (small CNN heads, a few environments,
-# briefly trained); `paper` is the paper's protocol at its sizes (ResNet18 heads, every base
-# environment but the calibration ones, 5 demos / 20 successes / 20 failures, 20 rollouts per
-# novel environment, the paper's epochs): a GPU machine's job.
-PROFILES: dict[str, dict[str, int | None]] = {
-    "mini": {"train_envs": 3, "calibration_envs": 1, "novel_envs": 2, "num_demos": 3, "num_successes": 4,
-             "num_failures": 4, "labelled": 2, "rollouts": 3, "policy_epochs": 20, "detector_epochs": 8},
-    "paper": {"train_envs": None, "calibration_envs": 4, "novel_envs": None, "num_demos": 5, "num_successes": 20,
-              "num_failures": 20, "labelled": 5, "rollouts": 20, "policy_epochs": None, "detector_epochs": None},
+# Per profile. `mini` is the demo's CPU default, sized to finish in about 20 minutes on two
+# cores: one policy (DCT), every detector, small CNN heads, a few environments, briefly trained
+# models, and every rollout the task's horizon long. `paper` is the paper's protocol at its
+# sizes (ResNet18 heads, every base environment but the calibration ones, 5 demos / 20
+# successes / 20 failures, 20 rollouts per novel environment, the paper's epochs): a GPU
+# machine's job.
+PROFILES: dict[str, dict[str, Any]] = {
+    "mini": {"policies": ("dct",), "train_envs": 5, "calibration_envs": 3, "novel_envs": 6, "num_demos": 3,
+             "num_successes": 4, "num_failures": 3, "labelled": 1, "rollouts": 4, "calibration_rollouts": 4,
+             "policy_epochs": 20, "detector_epochs": 4},
+    "paper": {"policies": ("naive_dc", "dct", "scan"), "train_envs": None, "calibration_envs": 4, "novel_envs": None,
+              "num_demos": 5, "num_successes": 20, "num_failures": 20, "labelled": 5, "rollouts": 20,
+              "calibration_rollouts": 20, "policy_epochs": None, "detector_epochs": None},
 }  # fmt: skip
 
 
@@ -57,8 +64,8 @@ class DemoConfig:
     """Task of the pipeline."""
     profile: Literal["mini", "paper"] = "mini"
     """mini: CPU-sized models and counts (minutes); paper: the paper's sizes (for a GPU machine)."""
-    policies: tuple[str, ...] = ("naive_dc", "dct", "scan")
-    """Policies trained and rolled out."""
+    policies: tuple[str, ...] | None = None
+    """Policies trained and rolled out (mini: dct; paper: naive_dc, dct, scan)."""
     detectors: tuple[str, ...] = DETECTOR_NAMES
     """Detectors trained, calibrated and evaluated."""
     runs: Path = Path("runs/demo")
@@ -66,27 +73,29 @@ class DemoConfig:
     train_envs: int | None = None
     """Base environments the models train on (paper: all but the calibration ones)."""
     calibration_envs: int | None = None
-    """Further base environments, held out for calibration."""
+    """Further base environments, held out of all training, for calibration."""
     novel_envs: int | None = None
     """Novel environments the policies are deployed in (paper: all)."""
     num_demos: int | None = None
     """Demonstrations per environment."""
     num_successes: int | None = None
-    """Agent successes per base environment."""
+    """Agent successes per base environment (calibration environments: for the expert calibration)."""
     num_failures: int | None = None
-    """Agent failures per base environment."""
+    """Agent failures per training environment."""
     labelled: int | None = None
     """Labelled expert successes and failures (each) per novel environment."""
     rollouts: int | None = None
     """Policy rollouts per novel environment."""
+    calibration_rollouts: int | None = None
+    """Policy rollouts per calibration environment (their successes calibrate the thresholds)."""
     policy_epochs: int | None = None
     """Policy training epochs (paper: the paper's per task)."""
     detector_epochs: int | None = None
     """Detector training epochs (paper: the paper's per task)."""
-    max_episode_steps: int | None = None
-    """Time limit of a rollout (default: the task's)."""
-    alpha: float = 0.2
-    """False-alarm rate of the calibrated thresholds."""
+    horizon: int | None = None
+    """Steps of every rollout (default: the task's evaluation horizon)."""
+    alphas: tuple[float, ...] = (0.1, 0.2)
+    """False-alarm rates of the calibrated thresholds."""
     workers: int = 2
     """Simulation processes for collection and rollouts."""
     seed: int = 0
@@ -100,13 +109,19 @@ class DemoConfig:
         for name, value in PROFILES[self.profile].items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
+        from aed_models.policies import POLICIES
+
+        unknown = [p for p in self.policies if p not in POLICIES]
+        if unknown or not self.policies:
+            raise ValueError(f"policies={self.policies}: known {sorted(POLICIES)}")
+        check_detectors(self.detectors)
         sizes = task_cls.catalogue_sizes
         if self.train_envs is None:
             self.train_envs = sizes["base"] - self.calibration_envs
         if self.novel_envs is None:
             self.novel_envs = sizes["novel"]
         for name in ("train_envs", "calibration_envs", "novel_envs", "num_demos", "num_successes", "num_failures",
-                     "rollouts", "workers"):  # fmt: skip
+                     "rollouts", "calibration_rollouts", "workers"):  # fmt: skip
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
         if self.train_envs + self.calibration_envs > sizes["base"]:
@@ -114,7 +129,13 @@ class DemoConfig:
                              f"{self.task} has {sizes['base']} base environments")  # fmt: skip
         if self.novel_envs > sizes["novel"]:
             raise ValueError(f"novel_envs={self.novel_envs}: {self.task} has {sizes['novel']} novel environments")
+        if not self.alphas or not all(0.0 < a < 1.0 for a in self.alphas):
+            raise ValueError(f"alphas={self.alphas}: each must lie in (0, 1)")
         self.runs = Path(self.runs)
+
+    @property
+    def calibration_env_indices(self) -> tuple[int, ...]:
+        return tuple(range(self.train_envs, self.train_envs + self.calibration_envs))
 
 
 class Stages:
@@ -144,11 +165,11 @@ class Stages:
         from aed_eval.collect import CollectConfig, run_collection
 
         c = self.cfg
-        run_collection(CollectConfig(
-            task=c.task, split="base", num_envs=c.train_envs + c.calibration_envs, num_demos=c.num_demos,
-            num_successes=c.num_successes, num_failures=c.num_failures, workers=c.workers, seed=c.seed,
-            out=self.layout.data(c.task, "base"), profile=c.profile, shard_size=5,
-        ))  # fmt: skip
+        common = {"task": c.task, "split": "base", "num_demos": c.num_demos, "num_successes": c.num_successes,
+                  "workers": c.workers, "seed": c.seed, "out": self.layout.data(c.task, "base"), "profile": c.profile,
+                  "shard_size": 5}  # fmt: skip
+        run_collection(CollectConfig(**common, envs=tuple(range(c.train_envs)), num_failures=c.num_failures))
+        run_collection(CollectConfig(**common, envs=c.calibration_env_indices, num_failures=0))
 
     def train_policies(self) -> None:
         from aed_models.train.policy import MINI, MINI_COMPOSITION, TrainPolicyConfig, train_policy
@@ -193,18 +214,23 @@ class Stages:
         from aed_eval.rollout import RolloutConfig, run_rollouts
 
         c = self.cfg
+        common = {"task": c.task, "runs": c.runs, "profile": c.profile, "num_demos": c.num_demos, "workers": c.workers,
+                  "horizon": c.horizon, "seed": c.seed}  # fmt: skip
         for policy in c.policies:
-            run_rollouts(RolloutConfig(task=c.task, policy=policy, runs=c.runs, num_envs=c.novel_envs, profile=c.profile,
-                                       num_episodes=c.rollouts, num_demos=c.num_demos, workers=c.workers,
-                                       max_episode_steps=c.max_episode_steps, seed=c.seed))  # fmt: skip
+            run_rollouts(RolloutConfig(**common, policy=policy, split="novel", num_envs=c.novel_envs,
+                                       num_episodes=c.rollouts))  # fmt: skip
+            run_rollouts(RolloutConfig(**common, policy=policy, split="base", envs=c.calibration_env_indices,
+                                       num_episodes=c.calibration_rollouts))  # fmt: skip
 
     def calibrate(self) -> None:
-        from aed_eval.calibrate import CalibrateConfig, calibrate_detectors
+        from aed_eval.calibrate import SOURCES, CalibrateConfig, calibrate_detectors
 
         c = self.cfg
         for policy in c.policies:
-            calibrate_detectors(CalibrateConfig(task=c.task, policy=policy, detectors=c.detectors, alpha=c.alpha,
-                                                num_demos=c.num_demos, runs=c.runs))  # fmt: skip
+            for source in SOURCES:
+                calibrate_detectors(CalibrateConfig(task=c.task, policy=policy, detectors=c.detectors, alphas=c.alphas,
+                                                    source=source, envs=c.calibration_env_indices,
+                                                    num_demos=c.num_demos, runs=c.runs))  # fmt: skip
 
     def evaluate(self) -> list[Path]:
         from aed_eval.evaluate import EvaluateConfig, evaluate_policy
@@ -252,6 +278,10 @@ def demo(cfg: Annotated[DemoConfig, tyro.conf.arg(name="")]) -> int:
                "stage_seconds": times, "total_seconds": round(total, 1), "report": str(path)}  # fmt: skip
     (cfg.runs / "demo.json").write_text(json.dumps(summary, indent=2))
     print(path.read_text())
+    print(f"ran: {cfg.task}, policies {', '.join(cfg.policies)}, detectors {', '.join(cfg.detectors)}; trained on "
+          f"{cfg.train_envs} base environments, calibrated on {cfg.calibration_envs} held-out ones x "
+          f"{cfg.calibration_rollouts} rollouts, deployed in {cfg.novel_envs} novel environments x {cfg.rollouts} "
+          f"rollouts of {cfg.horizon or task_class(cfg.task).eval_horizon} steps")  # fmt: skip
     print("stage times: " + ", ".join(f"{k} {v:.0f} s" for k, v in times.items()))
     print(f"demo finished in {total / 60:.1f} min; report: {path}")
     return 0

@@ -1,22 +1,23 @@
 """`aed evaluate`: the paper's main experiment for one task and policy, and more.
 
 The stored novel-split rollouts of a policy (`aed rollout`) are scored offline by every
-trained detector; per detector it reports:
+trained detector; per detector it reports, each number with a 95% bootstrap interval over
+rollouts (resampled within each outcome class):
 
-- rollout-level AUROC and AUPRC (the paper's accuracy function, 5000 thresholds);
-- at the detector's calibrated threshold (`aed calibrate`), when there is one: TPR, TNR,
-  balanced accuracy and detection time, as FAIL-Detect and FIPER report them;
+- rollout-level AUROC and AUPRC (the paper's accuracy function, 5000 thresholds), under the
+  default ending (every rollout runs the horizon) and, beside it, the paper's (each rollout
+  cut at its first success: a view of the same rollouts, since every score is causal);
+- at each calibrated threshold (`aed calibrate`, per source and alpha): TPR, TNR, balanced
+  accuracy, detection time and the false-alarm rate realised on the novel successes;
 - on labelled novel episodes (the experts' injected failures and clean successes, collected
   with `aed collect --split novel`), when given: frame-level AUROC and detection delays.
 
-Two reference rows are computed the same way: `time_only` (score = step / horizon, no input
-at all) and `random`. A successful rollout stops at its success while a failed one runs to
-the time limit, so under the any-frame rule a score that merely grows with time can look
-good; the references show how much of each number is length, and the rollout lengths by
-outcome are reported beside them.
-
-Results land in `runs/<task>/<policy>/eval/`: `results.json`, `results.md` and
-`scores.json` (every rollout's per-frame scores, for `aed report`'s plots).
+Two reference rows are computed the same way: `time_only` (score = step / horizon) and
+`random`. Under the default ending every rollout has the same length, so both sit at chance
+by construction; under the paper's ending they show how much of a number is length.
+A model is never scored on an environment it trained on (`--allow-trained-envs` makes a
+diagnostic, marked as such). Results land in `runs/<task>/<policy>/eval/`: `results.json`,
+`results.md` and `scores.json` (every episode's per-frame scores, for `aed report`'s plots).
 """
 
 from __future__ import annotations
@@ -31,9 +32,10 @@ import numpy as np
 import tyro
 
 from aed_eval import metrics
-from aed_eval.calibrate import load_policy_checked, read_calibration
-from aed_eval.checks import check_detectors, task_class
+from aed_eval.calibrate import SOURCES, load_policy_checked, read_calibration, threshold_at
+from aed_eval.checks import check_detectors, check_held_out, task_class
 from aed_eval.layout import RunLayout
+from aed_eval.rollout import paper_length, stored_rollouts
 from aed_eval.scoring import (
     DETECTOR_NAMES,
     Demonstrations,
@@ -45,6 +47,8 @@ from aed_tasks import trajectory
 logger = logging.getLogger(__name__)
 
 REFERENCES = ("time_only", "random")
+ENDING_TITLES = {"horizon": "every rollout runs the horizon", "success": "stopped at first success (the paper's ending)"}
+MIN_PER_OUTCOME = 5  # fewer rollouts of either outcome: reported, too small to rank
 
 
 @dataclass
@@ -71,8 +75,12 @@ class EvaluateConfig:
     """Demonstrations per environment given to the detectors."""
     window: int = 10
     """Frames after a labelled onset within which an alarm counts as on time."""
+    bootstrap: int = metrics.NUM_BOOTSTRAP
+    """Resamples of every bootstrap interval."""
+    allow_trained_envs: bool = False
+    """Score models on environments they trained on (a diagnostic, marked in the output)."""
     seed: int = 0
-    """Seed of the `random` reference."""
+    """Seed of the `random` reference and of the bootstrap."""
     runs: Path = Path("runs")
     """Root of the runs folder (see aed_eval.layout)."""
     progress: bool = True
@@ -85,8 +93,9 @@ class EvaluateConfig:
         if self.policy not in POLICIES:
             raise ValueError(f"policy={self.policy!r}: known {sorted(POLICIES)}")
         check_detectors(self.detectors)
-        if self.num_demos < 1 or self.window < 0:
-            raise ValueError(f"num_demos={self.num_demos}, window={self.window}: num_demos >= 1, window >= 0")
+        if self.num_demos < 1 or self.window < 0 or self.bootstrap < 1:
+            raise ValueError(f"num_demos={self.num_demos}, window={self.window}, bootstrap={self.bootstrap}: "
+                             "num_demos >= 1, window >= 0, bootstrap >= 1")  # fmt: skip
         layout = RunLayout(self.runs)
         self.rollouts = Path(self.rollouts or layout.rollouts(self.task, self.policy, self.split))
         self.demos = Path(self.demos or layout.data(self.task, self.split))
@@ -103,112 +112,149 @@ def stats(values: list[int]) -> dict[str, float]:
             "mean": float(v.mean())}  # fmt: skip
 
 
-def policy_rollouts(root: Path, policy: str) -> tuple[list[trajectory.EpisodeRef], str, int]:
-    """The stored rollouts of a policy, its checkpoint sha256 and the episodes' time limit."""
-    collection = trajectory.scan_collection(root)
-    refs, shas, horizon = [], set(), 0
-    for shard in collection.shards:
-        horizon = max(horizon, int(shard.body["env_info"].get("max_episode_steps") or 0))
-        for entry, ref in zip(shard.body["episodes"], shard.episodes, strict=True):
-            if ref.role != "policy_rollout":
-                continue
-            if entry.get("policy") != policy:
-                raise ValueError(f"{shard.json_path}: rollouts of policy {entry.get('policy')!r}, not {policy!r}")
-            shas.add(entry.get("policy_sha256"))
-            refs.append(ref)
-    if not refs:
-        raise ValueError(f"{root}: no policy rollouts; run `aed rollout` first")
-    if len(shas) != 1:
-        raise ValueError(f"{root}: rollouts of {len(shas)} different policy checkpoints; keep one per folder")
-    return refs, shas.pop(), horizon
+@dataclass
+class EndingView:
+    """The rollouts as one ending sees them: frames per rollout and outcome."""
+
+    ending: str
+    frames: list[int]  # T + 1 per rollout
+    failed: np.ndarray
+
+    def cut(self, scores: list[np.ndarray]) -> list[np.ndarray]:
+        return [s[:n] for s, n in zip(scores, self.frames, strict=True)]
 
 
-def success_rate(refs: list[trajectory.EpisodeRef]) -> dict[str, Any]:
-    """Mean ± std over environments of the per-environment success rate (the paper's table)."""
+def ending_views(entries: list[dict[str, Any]], recorded: str) -> dict[str, EndingView]:
+    """The recorded ending, and the paper's as a view of horizon rollouts (cut at first success)."""
+    full = EndingView(recorded, [int(e["elapsed_steps"]) + 1 for e in entries],
+                      np.asarray([not e["success"] for e in entries]))  # fmt: skip
+    if recorded != "horizon":
+        return {recorded: full}
+
+    def paper_success(e: dict[str, Any]) -> bool:
+        return e.get("success_step") is not None and (e.get("fail_step") is None or e["success_step"] <= e["fail_step"])
+
+    paper = EndingView("success", [paper_length(e) + 1 for e in entries], np.asarray([not paper_success(e) for e in entries]))
+    return {"horizon": full, "success": paper}
+
+
+def success_rate(refs: list[trajectory.EpisodeRef], seed: int, num: int) -> dict[str, Any]:
+    """Rate over rollouts with its bootstrap interval, and the paper's mean ± std over environments."""
     per_env: dict[int, list[bool]] = {}
     for ref in refs:
         per_env.setdefault(ref.env_index, []).append(ref.success)
     rates = np.asarray([np.mean(v) for v in per_env.values()])
-    return {"mean": float(rates.mean()), "std": float(rates.std()), "num_envs": len(rates),
-            "per_env": {str(k): float(np.mean(v)) for k, v in sorted(per_env.items())}}  # fmt: skip
+    outcomes = np.asarray([r.success for r in refs], dtype=float)
+    return {"rate": float(outcomes.mean()), "interval": metrics.rate_interval(outcomes, num, seed),
+            "successes": int(outcomes.sum()), "mean": float(rates.mean()), "std": float(rates.std()),
+            "num_envs": len(rates), "per_env": {str(k): float(np.mean(v)) for k, v in sorted(per_env.items())}}  # fmt: skip
 
 
-def rollout_metrics(scores: list[np.ndarray], failed: np.ndarray, output: str) -> dict[str, Any]:
+def curve_metrics(scores: list[np.ndarray], failed: np.ndarray, output: str, cfg: EvaluateConfig) -> dict[str, Any]:
+    """AUROC and AUPRC with intervals, and the ROC curve (thinned) of one detector under one ending."""
     maxima = metrics.rollout_maxima(scores)
-    kind = "distance" if output == "distance" else "probability"
-    curves = metrics.rollout_curves(maxima, failed, metrics.thresholds(kind, maxima))
-    return {"auroc": curves.auroc, "auprc": curves.auprc, "output": output,
-            "roc": {"fpr": curves.fpr.tolist()[::50], "tpr": curves.tpr.tolist()[::50]}}  # fmt: skip
+    grid = metrics.thresholds("distance" if output == "distance" else "probability", maxima)
+    curves = metrics.rollout_curves(maxima, failed, grid)
+    intervals = metrics.curve_intervals(maxima, failed, grid, cfg.bootstrap, cfg.seed)
+    return {"auroc": curves.auroc, "auroc_interval": intervals["auroc"], "auprc": curves.auprc,
+            "auprc_interval": intervals["auprc"], "roc": {"fpr": curves.fpr.tolist()[::50], "tpr": curves.tpr.tolist()[::50]}}  # fmt: skip
 
 
-def labelled_metrics(scores: list[np.ndarray], refs: list[trajectory.EpisodeRef], threshold: float | None, window: int) -> dict[str, Any]:
-    """Frame-level AUROC and, at a threshold, detection delays on episodes with true labels."""
+def labelled_metrics(scores: list[np.ndarray], refs: list[trajectory.EpisodeRef], thresholds: dict[str, float],
+                     cfg: EvaluateConfig) -> dict[str, Any]:  # fmt: skip
+    """Frame-level AUROC (interval over episodes) and, at each threshold, detection delays."""
     labels = []
     for ref, s in zip(refs, scores, strict=True):
         frame = np.zeros(len(s), dtype=bool)
         if ref.error_onset is not None:
             frame[int(ref.error_onset) + 1 :] = True  # frame t + 1 follows action t
         labels.append(frame)
-    result: dict[str, Any] = {"frame_auroc": metrics.frame_auroc(scores, labels), "episodes": len(refs)}
-    failures = [(s, ref) for s, ref in zip(scores, refs, strict=True) if ref.error_onset is not None]
-    if threshold is not None and failures:
-        result["delays"] = metrics.detection_delays([s for s, _ in failures], [r.error_onset + 1 for _, r in failures],
-                                                    threshold, window)  # fmt: skip
+    failures = np.asarray([r.error_onset is not None for r in refs])
+    interval = metrics.stratified_bootstrap(
+        lambda idx: metrics.frame_auroc([scores[i] for i in idx], [labels[i] for i in idx]),
+        [np.flatnonzero(failures), np.flatnonzero(~failures)], cfg.bootstrap, seed=cfg.seed)  # fmt: skip
+    result: dict[str, Any] = {"frame_auroc": metrics.frame_auroc(scores, labels), "frame_auroc_interval": interval,
+                              "episodes": len(refs), "delays": {}}  # fmt: skip
+    onsets = [(s, r.error_onset + 1) for s, r in zip(scores, refs, strict=True) if r.error_onset is not None]
+    for key, threshold in thresholds.items():
+        if onsets:
+            result["delays"][key] = metrics.detection_delays([s for s, _ in onsets], [o for _, o in onsets], threshold, cfg.window)
     return result
+
+
+def score_all(scorer: EpisodeScorer, refs: list[trajectory.EpisodeRef], names: list[str], desc: str, progress: bool) -> dict[str, list[np.ndarray]]:
+    from tqdm.auto import tqdm
+
+    scores: dict[str, list[np.ndarray]] = {name: [] for name in names}
+    for ref in tqdm(refs, desc=desc, disable=not progress):
+        for name, s in scorer.score(ref).items():
+            scores[name].append(s)
+    return scores
 
 
 def evaluate_policy(cfg: EvaluateConfig) -> dict[str, Any]:
     """Score every rollout by every detector and compute the metrics (see the module doc)."""
-    from tqdm.auto import tqdm
-
-    refs, rollout_sha, horizon = policy_rollouts(Path(cfg.rollouts), cfg.policy)
     layout = RunLayout(cfg.runs)
     policy, policy_sha = load_policy_checked(layout.policy(cfg.task, cfg.policy))
-    if policy_sha != rollout_sha:
-        raise ValueError(f"{cfg.rollouts}: rolled out by policy checkpoint {rollout_sha[:12]}, but "
-                         f"{layout.policy(cfg.task, cfg.policy)} is {policy_sha[:12]}; re-run aed rollout")  # fmt: skip
+    stored = stored_rollouts(Path(cfg.rollouts), cfg.policy, policy_sha)
+    refs = stored.refs
     detectors = [load_checked_detector(layout.detector(cfg.task, d, cfg.policy), d, cfg.task, policy_sha)
                  for d in cfg.detectors]  # fmt: skip
-    roots = [Path(cfg.demos)] + ([Path(cfg.labelled)] if cfg.labelled is not None else [])
-    scorer = EpisodeScorer(detectors, policy, Demonstrations(roots, cfg.split, cfg.num_demos))
-    per_detector: dict[str, list[np.ndarray]] = {d.name: [] for d in detectors}
-    for ref in tqdm(refs, desc=f"score {cfg.policy} rollouts", disable=not cfg.progress):
-        for name, s in scorer.score(ref).items():
-            per_detector[name].append(s)
-    failed = np.asarray([not r.success for r in refs])
-    lengths = [r.num_frames for r in refs]
-
+    models = {f"policy {cfg.policy}": policy.checkpoint_extra,
+              **{f"detector {d.name}": d.model.checkpoint_extra for d in detectors}}  # fmt: skip
+    overlaps = check_held_out(models, cfg.split, {r.env_index for r in refs}, "evaluate", cfg.allow_trained_envs)
     labelled_refs: list[trajectory.EpisodeRef] = []
-    labelled_scores: dict[str, list[np.ndarray]] = {d.name: [] for d in detectors}
     if cfg.labelled is not None:
         labelled_refs = [e for e in trajectory.scan_collection(Path(cfg.labelled)).episodes()
                          if e.role in ("agent_success", "agent_failure")]  # fmt: skip
-        for ref in tqdm(labelled_refs, desc="score labelled episodes", disable=not cfg.progress):
-            for name, s in scorer.score(ref).items():
-                labelled_scores[name].append(s)
+        for split in {e.split for e in labelled_refs}:
+            overlaps.update(check_held_out(models, split, {e.env_index for e in labelled_refs if e.split == split},
+                                           "evaluate (labelled episodes)", cfg.allow_trained_envs))  # fmt: skip
+
+    roots = [Path(cfg.demos)] + ([Path(cfg.labelled)] if cfg.labelled is not None else [])
+    scorer = EpisodeScorer(detectors, policy, Demonstrations(roots, cfg.split, cfg.num_demos))
+    names = [d.name for d in detectors]
+    per_detector = score_all(scorer, refs, names, f"score {cfg.policy} rollouts", cfg.progress)
+    labelled_scores = score_all(scorer, labelled_refs, names, "score labelled episodes", cfg.progress)
     scorer.close()
 
+    views = ending_views(stored.entries, stored.ending)
+    full_frames = views[stored.ending].frames
+    references = {"time_only": metrics.time_only_scores(full_frames, stored.horizon),
+                  "random": metrics.random_scores(full_frames, cfg.seed)}  # fmt: skip
     results: dict[str, Any] = {
         "task": cfg.task, "policy": cfg.policy, "policy_sha256": policy_sha, "split": cfg.split,
-        "rollouts": {"count": len(refs), "failures": int(failed.sum()), "success_rate": success_rate(refs),
-                     "horizon": horizon, "lengths": {"success": stats([n for n, f in zip(lengths, failed, strict=True) if not f]),
-                                                     "failure": stats([n for n, f in zip(lengths, failed, strict=True) if f])}},
+        "ending": stored.ending, "endings": list(views), "diagnostic": bool(overlaps), "trained_env_overlap": overlaps,
+        "rollouts": {"count": len(refs), "failures": int(views[stored.ending].failed.sum()),
+                     "success_rate": success_rate(refs, cfg.seed, cfg.bootstrap), "horizon": stored.horizon,
+                     "lengths": {ending: {"success": stats([n - 1 for n, f in zip(v.frames, v.failed, strict=True) if not f]),
+                                          "failure": stats([n - 1 for n, f in zip(v.frames, v.failed, strict=True) if f])}
+                                 for ending, v in views.items()},
+                     "outcomes": {ending: {"failures": int(v.failed.sum()), "successes": int((~v.failed).sum())}
+                                  for ending, v in views.items()}},
         "detectors": {}, "references": {},
     }  # fmt: skip
     for d in detectors:
-        row = rollout_metrics(per_detector[d.name], failed, d.output)
-        calibration = read_calibration(d.path, d.model.checkpoint_sha256)
-        threshold = None if calibration is None else float(calibration["threshold"])
-        if threshold is not None:
-            row["calibrated"] = {"alpha": calibration["alpha"], **metrics.alarm_rates(per_detector[d.name], failed, threshold).to_dict()}
+        calibrations = {source: read_calibration(d.path, d.model.checkpoint_sha256, source) for source in SOURCES}
+        thresholds = {f"{source}@{alpha}": t for source, body in calibrations.items() if body
+                      for alpha in body["thresholds"] if (t := threshold_at(body, float(alpha))) is not None}  # fmt: skip
+        row: dict[str, Any] = {"output": d.output, "calibration": {s: _calibration_summary(b) for s, b in calibrations.items() if b}}
+        for ending, view in views.items():
+            cut = view.cut(per_detector[d.name])
+            row[ending] = curve_metrics(cut, view.failed, d.output, cfg)
+            row[ending]["calibrated"] = {key: metrics.alarm_rates(cut, view.failed, t).to_dict() for key, t in thresholds.items()}
         if labelled_refs:
-            row["labelled"] = labelled_metrics(labelled_scores[d.name], labelled_refs, threshold, cfg.window)
+            row["labelled"] = labelled_metrics(labelled_scores[d.name], labelled_refs, thresholds, cfg)
         results["detectors"][d.name] = row
-    references = {"time_only": metrics.time_only_scores(lengths, horizon), "random": metrics.random_scores(lengths, cfg.seed)}
     for name, scores in references.items():
-        results["references"][name] = rollout_metrics(scores, failed, "probability")
+        results["references"][name] = {ending: curve_metrics(view.cut(scores), view.failed, "probability", cfg)
+                                       for ending, view in views.items()}  # fmt: skip
     write_results(Path(cfg.out), results, {"rollouts": (refs, per_detector), "labelled": (labelled_refs, labelled_scores)})
     return results
+
+
+def _calibration_summary(body: dict[str, Any]) -> dict[str, Any]:
+    return {k: body[k] for k in ("thresholds", "num_rollouts", "envs", "diagnostic")}
 
 
 def write_results(out: Path, results: dict[str, Any], scored: dict[str, tuple[list, dict[str, list[np.ndarray]]]]) -> None:
@@ -230,29 +276,58 @@ def _f(x: Any, digits: int = 3) -> str:
     return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{digits}f}"
 
 
+def with_interval(value: Any, interval: Any, digits: int = 3) -> str:
+    """`0.712 [0.60, 0.81]`, or `-` when undefined."""
+    if value is None or not np.isfinite(value):
+        return "-"
+    low, high = interval if interval is not None else (float("nan"), float("nan"))
+    return f"{value:.{digits}f} [{_f(low, min(digits, 2))}, {_f(high, min(digits, 2))}]"
+
+
+def too_small(outcomes: dict[str, int]) -> bool:
+    return min(outcomes["failures"], outcomes["successes"]) < MIN_PER_OUTCOME
+
+
 def format_results(results: dict[str, Any]) -> str:
     r = results["rollouts"]
     sr = r["success_rate"]
-    lines = [
-        f"## {results['task']} / {results['policy']} ({results['split']} split)",
-        "",
-        f"Policy success rate {100 * sr['mean']:.1f} ± {100 * sr['std']:.1f}% over {sr['num_envs']} environments "
-        f"({r['count']} rollouts, {r['failures']} failed). Frames per rollout: successes median "
-        f"{r['lengths']['success'].get('median', '-')}, failures median {r['lengths']['failure'].get('median', '-')} "
-        f"(time limit {r['horizon']} steps).",
-        "",
-        "| detector | AUROC | AUPRC | TPR | TNR | bal. acc. | frame AUROC (labelled) | delays early/on time/late/missed |",
-        "|---|---:|---:|---:|---:|---:|---:|---|",
-    ]
+    lines = [f"## {results['task']} / {results['policy']} ({results['split']} split)", ""]
+    if results["diagnostic"]:
+        lines += [f"**DIAGNOSTIC: scored on environments a model trained on** {results['trained_env_overlap']}.", ""]
+    lines += [
+        f"Policy success rate {with_interval(100 * sr['rate'], [100 * x for x in sr['interval']], 1)}% "
+        f"({sr['successes']}/{r['count']} rollouts; per environment {100 * sr['mean']:.1f} ± {100 * sr['std']:.1f}% "
+        f"over {sr['num_envs']}). Horizon {r['horizon']} steps.", "",
+        "| detector | " + " | ".join(f"AUROC, {e} | AUPRC, {e}" for e in results["endings"]) + " |",
+        "|---|" + "---:|---:|" * len(results["endings"]),
+    ]  # fmt: skip
     rows = [*results["detectors"].items(), *((f"*{k}*", v) for k, v in results["references"].items())]
     for name, row in rows:
-        cal = row.get("calibrated", {})
-        lab = row.get("labelled", {})
-        delays = lab.get("delays", {}).get("counts")
-        delay_text = "/".join(str(delays[k]) for k in metrics.DELAY_CLASSES) if delays else "-"
-        lines.append(f"| {name} | {_f(row['auroc'])} | {_f(row['auprc'])} | {_f(cal.get('tpr'), 2)} | "
-                     f"{_f(cal.get('tnr'), 2)} | {_f(cal.get('balanced_accuracy'), 2)} | {_f(lab.get('frame_auroc'))} | "
-                     f"{delay_text} |")  # fmt: skip
+        cells = [c for e in results["endings"] for c in (with_interval(row[e]["auroc"], row[e]["auroc_interval"]),
+                                                         with_interval(row[e]["auprc"], row[e]["auprc_interval"]))]  # fmt: skip
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines.append("")
+    for ending in results["endings"]:
+        o, lengths = r["outcomes"][ending], r["lengths"][ending]
+        flag = f" Too small to rank (fewer than {MIN_PER_OUTCOME} of an outcome)." if too_small(o) else ""
+        lines.append(f"- *{ending}*: {ENDING_TITLES[ending]}; {o['successes']} successes (median "
+                     f"{lengths['success'].get('median', '-')} steps), {o['failures']} failures (median "
+                     f"{lengths['failure'].get('median', '-')} steps).{flag}")  # fmt: skip
+    lines += ["", f"At the calibrated thresholds ({results['ending']} ending): realised false-alarm rate on the novel "
+              "successes [Wilson 95%], TPR, TNR", "", "| detector | calibration | FAR | TPR | TNR | bal. acc. |",
+              "|---|---|---:|---:|---:|---:|"]  # fmt: skip
+    for name, row in results["detectors"].items():
+        for key, rates in row[results["ending"]]["calibrated"].items():
+            lines.append(f"| {name} | {key} | {with_interval(rates['false_alarm_rate'], rates['false_alarm_interval'], 2)} | "
+                         f"{_f(rates['tpr'], 2)} | {_f(rates['tnr'], 2)} | {_f(rates['balanced_accuracy'], 2)} |")  # fmt: skip
+    if any("labelled" in row for row in results["detectors"].values()):
+        lines += ["", "Labelled novel episodes (expert successes and injected failures)", "",
+                  "| detector | frame AUROC | delays early/on time/late/missed |", "|---|---:|---|"]  # fmt: skip
+        for name, row in results["detectors"].items():
+            lab = row.get("labelled", {})
+            delays = "; ".join(f"{k}: " + "/".join(str(v["counts"][c]) for c in metrics.DELAY_CLASSES)
+                               for k, v in lab.get("delays", {}).items()) or "-"  # fmt: skip
+            lines.append(f"| {name} | {with_interval(lab.get('frame_auroc'), lab.get('frame_auroc_interval'))} | {delays} |")
     return "\n".join(lines)
 
 

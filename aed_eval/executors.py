@@ -14,6 +14,7 @@ seconds) and feeds it jobs. A runner is made by a picklable factory, e.g.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable, Sequence
 from typing import Any, Literal, Protocol
 
@@ -84,12 +85,38 @@ def _execute_inline(
             runner.close()
 
 
+def worker_threads(workers: int) -> int:
+    """Threads per worker process: `AED_WORKER_THREADS` if set (0: each library's default, every
+    core), else the worker's share of the cores."""
+    value = os.environ.get("AED_WORKER_THREADS")
+    if value is not None:
+        if not value.isdigit():
+            raise ValueError(f"AED_WORKER_THREADS={value!r}: a number of threads, or 0 for the libraries' defaults")
+        return int(value)
+    return max(1, (os.cpu_count() or 1) // workers)
+
+
+def share_cores(threads: int) -> None:
+    """Let this process's torch and lavapipe (SAPIEN's CPU renderer) use `threads` threads.
+
+    Each library sizes its pool to every core by default, so N workers would run N times as
+    many threads as there are cores, and thrash. 0 leaves the defaults.
+    """
+    if threads < 1:
+        return
+    import torch
+
+    os.environ["LP_NUM_THREADS"] = str(threads)  # read when the renderer starts
+    torch.set_num_threads(threads)
+
+
 # Local process pool: each worker process keeps its own runner.
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(make_runner: Callable[[], Runner], ticks: Any, log_level: int) -> None:
+def _init_worker(make_runner: Callable[[], Runner], ticks: Any, log_level: int, threads: int) -> None:
     setup_logging(log_level)
+    share_cores(threads)
     _WORKER["runner"] = make_runner()
     _WORKER["ticks"] = ticks
 
@@ -111,8 +138,9 @@ def _execute_pool(
     ticks = ctx.Queue()
     level = logging.getLogger().getEffectiveLevel()
     workers = min(workers, len(jobs))
+    threads = worker_threads(workers)
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
-                             initargs=(make_runner, ticks, level)) as pool:  # fmt: skip
+                             initargs=(make_runner, ticks, level, threads)) as pool:  # fmt: skip
         pending = {pool.submit(_run_in_worker, job) for job in jobs}
         try:
             while pending:

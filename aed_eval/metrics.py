@@ -18,18 +18,21 @@ Beyond the paper:
 - `alarm_rates`: TPR, TNR, balanced accuracy and detection time at one threshold (what
   FAIL-Detect and FIPER report);
 - `frame_auroc` and `detection_delays`: on episodes with true frame labels (the experts'
-  injected failures in the novel split).
+  injected failures in the novel split);
+- `stratified_bootstrap` and `proportion_interval`: 95% intervals of every number above.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 NUM_THRESHOLDS = 5000
+NUM_BOOTSTRAP = 1000
+LEVEL = 0.95
 
 
 def rollout_maxima(scores: Sequence[np.ndarray]) -> np.ndarray:
@@ -184,6 +187,10 @@ class AlarmRates:
     tpr: float  # failed rollouts alarmed
     tnr: float  # successful rollouts not alarmed
     balanced_accuracy: float
+    false_alarms: int  # successful rollouts alarmed
+    successes: int
+    false_alarm_rate: float  # 1 - TNR, the rate a calibration promises to bound
+    false_alarm_interval: tuple[float, float]  # Wilson 95%
     detection_step_mean: float  # first alarm step of alarmed failed rollouts (nan if none)
     detection_fraction_mean: float  # the same as a fraction of the rollout's length
 
@@ -198,16 +205,21 @@ def first_alarm(scores: np.ndarray, threshold: float) -> int | None:
 
 
 def alarm_rates(scores: Sequence[np.ndarray], failed: np.ndarray, threshold: float) -> AlarmRates:
-    """TPR / TNR / balanced accuracy and detection time of the any-frame rule at one threshold."""
+    """TPR / TNR / balanced accuracy, the realised false-alarm rate and detection time of the
+    any-frame rule at one threshold."""
     failed = np.asarray(failed, dtype=bool)
     alarms = [first_alarm(s, threshold) for s in scores]
     alarmed = np.asarray([a is not None for a in alarms])
     tpr = float(alarmed[failed].mean()) if failed.any() else float("nan")
     tnr = float((~alarmed[~failed]).mean()) if (~failed).any() else float("nan")
+    false_alarms, successes = int(alarmed[~failed].sum()), int((~failed).sum())
     steps = [a for a, f in zip(alarms, failed, strict=True) if f and a is not None]
     fractions = [a / max(len(s) - 1, 1) for a, s, f in zip(alarms, scores, failed, strict=True) if f and a is not None]
     return AlarmRates(
         threshold=threshold, tpr=tpr, tnr=tnr, balanced_accuracy=(tpr + tnr) / 2,  # nan without both outcomes
+        false_alarms=false_alarms, successes=successes,
+        false_alarm_rate=false_alarms / successes if successes else float("nan"),
+        false_alarm_interval=proportion_interval(false_alarms, successes),
         detection_step_mean=float(np.mean(steps)) if steps else float("nan"),
         detection_fraction_mean=float(np.mean(fractions)) if fractions else float("nan"),
     )  # fmt: skip
@@ -247,3 +259,78 @@ def time_only_scores(lengths: Sequence[int], horizon: int) -> list[np.ndarray]:
 def random_scores(lengths: Sequence[int], seed: int = 0) -> list[np.ndarray]:
     rng = np.random.default_rng(seed)
     return [rng.uniform(0.0, 1.0, n) for n in lengths]
+
+
+# --- intervals -----------------------------------------------------------------------------------
+def stratified_bootstrap(
+    statistic: Callable[[np.ndarray], float],
+    groups: Sequence[np.ndarray],
+    num: int = NUM_BOOTSTRAP,
+    level: float = LEVEL,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """Percentile interval of `statistic(indices)` over resamples drawn within each group.
+
+    Each replicate resamples every group (e.g. the failed and the successful rollouts' indices)
+    with replacement to its own size, so that the class balance stays the observed one.
+    Replicates where the statistic is undefined (nan) are dropped; (nan, nan) when all are.
+    """
+    groups = [np.asarray(g, dtype=int) for g in groups if len(g)]
+    if not groups:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    values = np.asarray([
+        statistic(np.concatenate([rng.choice(g, size=len(g), replace=True) for g in groups])) for _ in range(num)
+    ], dtype=float)  # fmt: skip
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return float("nan"), float("nan")
+    tail = 100 * (1 - level) / 2
+    return float(np.percentile(values, tail)), float(np.percentile(values, 100 - tail))
+
+
+def curve_intervals(
+    maxima: np.ndarray, failed: np.ndarray, grid: np.ndarray, num: int = NUM_BOOTSTRAP, seed: int = 0
+) -> dict[str, tuple[float, float]]:
+    """95% intervals of AUROC and AUPRC, rollouts resampled within each outcome class.
+
+    The threshold grid stays the one of the observed rollouts (the sweep being measured).
+    """
+    maxima, failed = np.asarray(maxima, dtype=float), np.asarray(failed, dtype=bool)
+    groups = [np.flatnonzero(failed), np.flatnonzero(~failed)]
+    intervals = {}
+    for name in ("auroc", "auprc"):
+        intervals[name] = stratified_bootstrap(
+            lambda idx, name=name: getattr(rollout_curves(maxima[idx], failed[idx], grid), name), groups, num, seed=seed
+        )
+    return intervals
+
+
+def rate_interval(outcomes: np.ndarray, num: int = NUM_BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
+    """95% bootstrap interval of a rate (e.g. the policy's success rate) over its trials."""
+    outcomes = np.asarray(outcomes, dtype=float)
+    return stratified_bootstrap(lambda idx: float(outcomes[idx].mean()), [np.arange(len(outcomes))], num, seed=seed)
+
+
+def proportion_interval(hits: int, trials: int, level: float = LEVEL) -> tuple[float, float]:
+    """Wilson score interval of a proportion (a realised false-alarm rate).
+
+    Unlike a bootstrap, it is not degenerate at 0 or n hits: 0 false alarms in 6 successes
+    still allows a rate up to 0.39.
+    """
+    if trials <= 0:
+        return float("nan"), float("nan")
+    from statistics import NormalDist
+
+    z = NormalDist().inv_cdf(0.5 + level / 2)
+    p = hits / trials
+    centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
+    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def intervals_overlap(a: Sequence[float], b: Sequence[float]) -> bool:
+    """Whether two (low, high) intervals share a point (unknown ones count as overlapping)."""
+    if not all(np.isfinite(x) for x in (*a, *b)):
+        return True
+    return a[0] <= b[1] and b[0] <= a[1]

@@ -17,6 +17,7 @@ offline `score` of the same frames (tests/test_monitor.py checks it).
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -30,6 +31,8 @@ import tyro
 OnAlarm = Literal["stop", "correct", "none"]
 SAFE_TCP = np.array([0.0, 0.0, 0.30])  # above the table centre (table top: z = 0)
 MAX_DELTA = 0.1  # metres per unit action of pd_ee_delta_pos
+
+logger = logging.getLogger(__name__)
 
 
 def move_to_safe_pose(env: gym.Env, gripper: float, max_steps: int = 40, tol: float = 0.01) -> list[Any]:
@@ -129,14 +132,18 @@ def monitor(
     split: Literal["base", "novel"] = "novel",
     seed: int = 0,
     threshold: float | None = None,
+    alpha: float = 0.1,
     on_alarm: OnAlarm = "stop",
     num_demos: int = 5,
     runs: Path = Path("runs"),
     out: Annotated[Path | None, tyro.conf.arg(help="video path (default runs/<task>/<policy>/monitor/<detector>_env<k>.mp4)")] = None,
 ) -> int:
-    """Run a policy with a detector beside it in one environment and write a video with the score curve."""
+    """Run a policy with a detector beside it in one environment and write a video with the score curve.
+
+    The alarm threshold: `threshold`, else the detector's calibration on the policy for
+    `alpha` (`aed calibrate`), else 0.9."""
     import aed_tasks
-    from aed_eval.calibrate import load_policy_checked, read_calibration
+    from aed_eval.calibrate import load_policy_checked, read_calibration, threshold_at
     from aed_eval.layout import RunLayout
     from aed_eval.scoring import Demonstrations, load_checked_detector
 
@@ -147,7 +154,10 @@ def monitor(
     loaded = load_checked_detector(path, detector, task, sha)
     if threshold is None:
         calibration = read_calibration(path, loaded.model.checkpoint_sha256)
-        threshold = 0.9 if calibration is None else float(calibration["threshold"])
+        threshold = threshold_at(calibration, alpha) if calibration is not None else None
+        if threshold is None:
+            logger.warning("%s: no calibrated threshold for alpha %s; alarms at 0.9", path.parent, alpha)
+            threshold = 0.9
     demos = Demonstrations(layout.data(task, split), split, num_demos)
     if env_index not in demos:
         raise ValueError(f"env_index={env_index}: no {split} demonstrations in runs/{task}/data/{split}")

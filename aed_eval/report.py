@@ -3,11 +3,15 @@
 Reads the `results.json` (and `scores.json`) that `aed evaluate` wrote for each case and
 writes, into one folder:
 
-- `report.md` / `report.json`: AUROC and AUPRC per case and detector (the reference rows
-  `time_only` and `random` beside them), Top-1 counts, average rank and average performance
-  difference `(score - worst) / worst` per detector (the paper's summary rows), the policies'
-  success rates, the rates at each calibrated threshold, and detection delays on labelled
-  episodes;
+- `report.md` / `report.json`: AUROC and AUPRC with 95% intervals per case and detector,
+  under the default ending and the paper's (each table says which). The summary rows (Top-1
+  count, average rank, average performance difference `(score - worst) / worst`) rank the
+  paper's five detectors only, over the cases with at least 5 rollouts of each outcome;
+  `rnd_oe` and the `time_only` / `random` references stand beside them, outside the ranking.
+  A best score whose interval overlaps the runner-up's is marked `≈`; a case too small to
+  rank is marked `‡`. Then the policies' success rates, the rates at each calibrated
+  threshold (with the realised false-alarm rate), and detection delays on labelled episodes;
+- `auroc_<task>_<policy>.png`: AUROC with its interval for every detector, per ending;
 - `roc_<task>_<policy>.png`: ROC curves of every detector for one case;
 - `scores_<task>_<policy>.png`: score against time for a successful and a failed episode per
   detector, the labelled onset marked when the failed episode has one.
@@ -25,6 +29,8 @@ import numpy as np
 import tyro
 
 from aed_eval import metrics
+from aed_eval.evaluate import ENDING_TITLES, MIN_PER_OUTCOME, too_small, with_interval
+from aed_eval.scoring import PAPER_DETECTORS
 from aed_tasks import trajectory
 
 logger = logging.getLogger(__name__)
@@ -62,9 +68,9 @@ def load_case(path: Path) -> dict[str, Any]:
         body = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as e:
         raise ValueError(f"{path}: corrupt results ({e}); re-run aed evaluate") from e
-    for key in ("task", "policy", "detectors", "references", "rollouts"):
-        if key not in body:
-            raise ValueError(f"{path}: not an `aed evaluate` results file (no {key!r})")
+    for key in ("task", "policy", "detectors", "references", "rollouts", "endings"):
+        if not isinstance(body, dict) or key not in body:
+            raise ValueError(f"{path}: not an `aed evaluate` results file of this version (no {key!r}); re-run aed evaluate")
     body["path"] = str(path)
     return body
 
@@ -83,97 +89,176 @@ def check_cases(cases: list[dict[str, Any]]) -> list[str]:
     for case in cases:
         extra = sorted(set(case["detectors"]) - set(common))
         if extra:
-            logger.warning("%s: %s not in every case, left out of ranks", case["path"], extra)
+            logger.warning("%s: %s not in every case, left out of the report", case["path"], extra)
     return common
 
 
-def summary_rows(cases: list[dict[str, Any]], detectors: list[str], metric: str) -> dict[str, dict[str, float]]:
-    """Top-1 counts, average rank and average performance difference of each detector."""
-    top1 = dict.fromkeys(detectors, 0)
-    ranks: dict[str, list[float]] = {d: [] for d in detectors}
-    diffs: dict[str, list[float]] = {d: [] for d in detectors}
+def rankable(case: dict[str, Any], ending: str) -> bool:
+    return ending in case["endings"] and not too_small(case["rollouts"]["outcomes"][ending])
+
+
+def summary_rows(cases: list[dict[str, Any]], ranked: list[str], metric: str, ending: str) -> dict[str, dict[str, float]]:
+    """Top-1 counts, average rank and average performance difference of the ranked detectors,
+    over the cases large enough to rank."""
+    top1 = dict.fromkeys(ranked, 0)
+    ranks: dict[str, list[float]] = {d: [] for d in ranked}
+    diffs: dict[str, list[float]] = {d: [] for d in ranked}
     for case in cases:
-        values = np.asarray([case["detectors"][d][metric] for d in detectors], dtype=float)
+        if not rankable(case, ending):
+            continue
+        values = np.asarray([case["detectors"][d][ending][metric] for d in ranked], dtype=float)
         if not np.isfinite(values).any():
-            continue  # undefined here (e.g. no successful rollout): the case does not rank anyone
+            continue
         values = np.nan_to_num(values, nan=0.0)
         best, worst = values.max(), values.min()
         order = (-values).argsort(kind="stable")
         rank = np.empty(len(values))
         rank[order] = np.arange(1, len(values) + 1)
-        for i, d in enumerate(detectors):
+        for i, d in enumerate(ranked):
             top1[d] += int(values[i] == best)
             ranks[d].append(float(rank[i]))
             diffs[d].append(float((values[i] - worst) / worst) if worst > 0 else float("nan"))
     return {d: {"top1": top1[d], "avg_rank": float(np.mean(ranks[d])) if ranks[d] else float("nan"),
                 "avg_diff": float(np.nanmean(diffs[d])) if np.isfinite(diffs[d]).any() else float("nan")}
-            for d in detectors}  # fmt: skip
+            for d in ranked}  # fmt: skip
+
+
+def best_marks(cells: dict[str, dict[str, Any]], ranked: list[str], metric: str) -> dict[str, str]:
+    """`**` around the best ranked detector; `≈` when its interval overlaps the runner-up's."""
+    scored = sorted((d for d in ranked if np.isfinite(cells[d][metric])), key=lambda d: -cells[d][metric])
+    if not scored:
+        return {}
+    marks = {scored[0]: "best"}
+    if len(scored) > 1 and metrics.intervals_overlap(cells[scored[0]][f"{metric}_interval"], cells[scored[1]][f"{metric}_interval"]):
+        marks[scored[0]] = "tied"
+    return marks
 
 
 def _f(x: Any, digits: int = 3) -> str:
     return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{digits}f}"
 
 
+def metric_table(cases: list[dict[str, Any]], names: list[str], detectors: list[str], metric: str, ending: str) -> tuple[list[str], dict]:
+    """One metric under one ending: a row per case, the ranked detectors, then the others."""
+    ranked = [d for d in detectors if d in PAPER_DETECTORS]
+    others = [d for d in detectors if d not in PAPER_DETECTORS]
+    references = list(cases[0]["references"])
+    columns = [*ranked, *others, *(f"*{r}*" for r in references)]
+    lines = [f"### {metric.upper()}, {ENDING_TITLES[ending]}", "",
+             "| case | " + " | ".join(columns) + " |", "|---|" + "---:|" * len(columns)]  # fmt: skip
+    table = {}
+    for name, case in zip(names, cases, strict=True):
+        if ending not in case["endings"]:
+            continue
+        cells = {d: case["detectors"][d][ending] for d in detectors}
+        cells.update({f"*{r}*": case["references"][r][ending] for r in references})
+        table[name] = {c: {metric: cells[c][metric], "interval": cells[c][f"{metric}_interval"]} for c in columns}
+        marks = best_marks(cells, ranked, metric)
+        texts = []
+        for c in columns:
+            text = with_interval(cells[c][metric], cells[c][f"{metric}_interval"])
+            if c in marks:
+                text = f"**{text}**" + (" ≈" if marks[c] == "tied" else "")
+            texts.append(text)
+        flag = " ‡" if not rankable(case, ending) else ""
+        lines.append(f"| {name}{flag} | " + " | ".join(texts) + " |")
+    summary = summary_rows(cases, ranked, metric, ending)
+    for key, label in (("top1", "Top-1 count"), ("avg_rank", "Avg. rank"), ("avg_diff", "Avg. perf. diff.")):
+        lines.append(f"| *{label}* | " + " | ".join(_f(summary[d][key], 0 if key == "top1" else 2) for d in ranked)
+                     + " |" * (1 + len(columns) - len(ranked)))  # fmt: skip
+    return lines + [""], {"table": table, "summary": summary}
+
+
 def build_report(cases: list[dict[str, Any]], detectors: list[str]) -> tuple[dict[str, Any], str]:
     names = [f"{c['task']} / {c['policy']}" for c in cases]
-    report: dict[str, Any] = {"cases": names, "detectors": detectors, "metrics": {}, "summary": {}, "policies": {},
-                              "calibrated": {}, "delays": {}}  # fmt: skip
-    lines = ["# AED report", ""]
-    for metric in METRICS:
-        columns = [*detectors, *(f"*{r}*" for r in cases[0]["references"])]
-        lines += [f"## {metric.upper()} (rollout level, novel environments)", "",
-                  "| case | " + " | ".join(columns) + " |", "|---|" + "---:|" * len(columns)]  # fmt: skip
-        table = {}
-        for name, case in zip(names, cases, strict=True):
-            row = {d: case["detectors"][d][metric] for d in detectors}
-            row.update({f"*{r}*": v[metric] for r, v in case["references"].items()})
-            table[name] = row
-            best = max((row[d] for d in detectors if np.isfinite(row[d])), default=None)
-            cells = [f"**{_f(row[c])}**" if c in detectors and row[c] == best else _f(row[c]) for c in columns]
-            lines.append(f"| {name} | " + " | ".join(cells) + " |")
-        summary = summary_rows(cases, detectors, metric)
-        for key, label in (("top1", "Top-1 count"), ("avg_rank", "Avg. rank"), ("avg_diff", "Avg. perf. diff.")):
-            lines.append(f"| *{label}* | " + " | ".join(_f(summary[d][key], 0 if key == "top1" else 2) for d in detectors)
-                         + " |" * (1 + len(columns) - len(detectors)))  # fmt: skip
-        report["metrics"][metric], report["summary"][metric] = table, summary
-        lines.append("")
-    lines += ["## Policy success rates (novel environments)", "", "| case | success rate | rollouts | median frames success / failure |",
-              "|---|---:|---:|---|"]  # fmt: skip
+    endings = [e for e in ("horizon", "success") if any(e in c["endings"] for c in cases)]
+    report: dict[str, Any] = {"cases": names, "detectors": detectors, "ranked": [d for d in detectors if d in PAPER_DETECTORS],
+                              "metrics": {}, "policies": {}, "calibrated": {}, "labelled": {}}  # fmt: skip
+    lines = ["# AED report", "",
+             "Rollout level, novel environments; 95% bootstrap intervals over rollouts (resampled within each outcome). "
+             "Bold: the best of the paper's five detectors, `≈` when its interval overlaps the runner-up's. "
+             f"‡: fewer than {MIN_PER_OUTCOME} rollouts of an outcome, too small to rank (left out of the summary rows). "
+             "rnd_oe and the references stand outside the ranking.", ""]  # fmt: skip
+    if any(c.get("diagnostic") for c in cases):
+        lines += ["**DIAGNOSTIC: some cases were scored on environments a model trained on** "
+                  f"({', '.join(n for n, c in zip(names, cases, strict=True) if c.get('diagnostic'))}).", ""]  # fmt: skip
+    for ending in endings:
+        lines += [f"## {ENDING_TITLES[ending].capitalize()}", ""]
+        for metric in METRICS:
+            table_lines, body = metric_table(cases, names, detectors, metric, ending)
+            lines += table_lines
+            report["metrics"].setdefault(ending, {})[metric] = body
+    lines += ["## Policy success rates (novel environments)", "",
+              "| case | success rate [95%] | successes / rollouts | per environment | horizon | median steps success / failure |",
+              "|---|---:|---:|---:|---:|---|"]  # fmt: skip
     for name, case in zip(names, cases, strict=True):
         r = case["rollouts"]
-        sr = r["success_rate"]
+        sr, lengths = r["success_rate"], r["lengths"][case["ending"]]
         report["policies"][name] = r
-        lines.append(f"| {name} | {100 * sr['mean']:.1f} ± {100 * sr['std']:.1f}% | {r['count']} | "
-                     f"{r['lengths']['success'].get('median', '-')} / {r['lengths']['failure'].get('median', '-')} |")  # fmt: skip
-    lines += ["", "## At the calibrated threshold (rollout level) and on labelled episodes", "",
-              "| case | detector | alpha | TPR | TNR | bal. acc. | frame AUROC | delays early/on time/late/missed |",
-              "|---|---|---:|---:|---:|---:|---:|---|"]  # fmt: skip
+        lines.append(f"| {name} | {with_interval(100 * sr['rate'], [100 * x for x in sr['interval']], 1)}% | "
+                     f"{sr['successes']} / {r['count']} | {100 * sr['mean']:.1f} ± {100 * sr['std']:.1f}% | {r['horizon']} | "
+                     f"{lengths['success'].get('median', '-')} / {lengths['failure'].get('median', '-')} |")  # fmt: skip
+    lines += ["", "## At the calibrated thresholds", "",
+              "Calibration `policy@a`: the policy's successful rollouts in held-out base environments, alpha a; "
+              "`expert@a`: the expert's successes there (the earlier protocol). FAR: the false-alarm rate realised on "
+              "the novel successes [Wilson 95%], to compare with alpha.", "",
+              "| case | detector | calibration | FAR | TPR | TNR | bal. acc. | detection step |",
+              "|---|---|---|---:|---:|---:|---:|---:|"]  # fmt: skip
     for name, case in zip(names, cases, strict=True):
         for d in detectors:
-            row = case["detectors"][d]
-            cal, lab = row.get("calibrated", {}), row.get("labelled", {})
-            counts = lab.get("delays", {}).get("counts")
-            report["calibrated"].setdefault(name, {})[d] = cal
-            report["delays"].setdefault(name, {})[d] = lab
-            lines.append(f"| {name} | {d} | {_f(cal.get('alpha'), 2)} | {_f(cal.get('tpr'), 2)} | {_f(cal.get('tnr'), 2)} | "
-                         f"{_f(cal.get('balanced_accuracy'), 2)} | {_f(lab.get('frame_auroc'))} | "
-                         + ("/".join(str(counts[k]) for k in metrics.DELAY_CLASSES) if counts else "-") + " |")  # fmt: skip
+            calibrated = case["detectors"][d][case["ending"]].get("calibrated", {})
+            report["calibrated"].setdefault(name, {})[d] = calibrated
+            for key, rates in calibrated.items():
+                lines.append(f"| {name} | {d} | {key} | {with_interval(rates['false_alarm_rate'], rates['false_alarm_interval'], 2)} | "
+                             f"{_f(rates['tpr'], 2)} | {_f(rates['tnr'], 2)} | {_f(rates['balanced_accuracy'], 2)} | "
+                             f"{_f(rates['detection_step_mean'], 0)} |")  # fmt: skip
+    lines += ["", "## Labelled novel episodes (expert successes and injected failures)", "",
+              "| case | detector | frame AUROC [95%] | delays early/on time/late/missed |", "|---|---|---:|---|"]  # fmt: skip
+    for name, case in zip(names, cases, strict=True):
+        for d in detectors:
+            lab = case["detectors"][d].get("labelled")
+            if not lab:
+                continue
+            report["labelled"].setdefault(name, {})[d] = lab
+            delays = "; ".join(f"{k}: " + "/".join(str(v["counts"][c]) for c in metrics.DELAY_CLASSES)
+                               for k, v in lab.get("delays", {}).items()) or "-"  # fmt: skip
+            lines.append(f"| {name} | {d} | {with_interval(lab['frame_auroc'], lab.get('frame_auroc_interval'))} | {delays} |")
     return report, "\n".join(lines) + "\n"
 
 
 def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
-    """ROC curves of a case, and score against time for a successful and a failed episode."""
+    """AUROC with intervals per ending, ROC curves, and score against time for two episodes."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     stem = f"{case['task']}_{case['policy']}"
+    rows = {**case["detectors"], **{f"{k} (ref.)": v for k, v in case["references"].items()}}
     written = []
+
+    fig, ax = plt.subplots(figsize=(1.1 * len(rows) + 2, 3.6))
+    width = 0.8 / len(case["endings"])
+    for k, ending in enumerate(case["endings"]):
+        values = np.asarray([row[ending]["auroc"] for row in rows.values()], dtype=float)
+        low = np.asarray([row[ending]["auroc_interval"][0] for row in rows.values()], dtype=float)
+        high = np.asarray([row[ending]["auroc_interval"][1] for row in rows.values()], dtype=float)
+        x = np.arange(len(rows)) + (k - (len(case["endings"]) - 1) / 2) * width
+        err = np.nan_to_num(np.stack([values - low, high - values]), nan=0.0)
+        ax.bar(x, np.nan_to_num(values), width, yerr=err, capsize=3, label=ENDING_TITLES[ending])
+    ax.axhline(0.5, color="grey", linestyle=":")
+    ax.set_xticks(np.arange(len(rows)), list(rows), rotation=30, ha="right", fontsize=8)
+    ax.set(ylim=(0, 1), ylabel="rollout AUROC [95%]", title=f"{case['task']} / {case['policy']}")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    written.append(out / f"auroc_{stem}.png")
+    fig.savefig(written[-1], dpi=120)
+    plt.close(fig)
+
     fig, ax = plt.subplots(figsize=(4.5, 4.2))
-    for name, row in [*case["detectors"].items(), *case["references"].items()]:
-        style = "--" if name in case["references"] else "-"
-        ax.plot(row["roc"]["fpr"], row["roc"]["tpr"], style, label=f"{name} ({_f(row['auroc'], 2)})")
+    for name, row in rows.items():
+        cell = row[case["ending"]]
+        ax.plot(cell["roc"]["fpr"], cell["roc"]["tpr"], "--" if "(ref.)" in name else "-", label=f"{name} ({_f(cell['auroc'], 2)})")
     ax.plot([0, 1], [0, 1], ":", color="grey")
     ax.set(xlabel="false positive rate", ylabel="true positive rate", title=f"{case['task']} / {case['policy']}")
     ax.legend(fontsize=7)

@@ -7,9 +7,14 @@ the episode format with role `policy_rollout`, the env's `success` / `stage` per
 the policy's name and checkpoint sha256; frame labels are unknown in these environments and
 stored as zeros with `labels_known: false`.
 
-A successful rollout ends at its first success step (ManiSkill's termination), a failed one
-runs to the time limit. Work is cut into shards of (environment, index range) exactly like
-`aed collect`: seeds derive from the shard's identity, so any number of workers (or Ray)
+Every rollout runs the task's evaluation horizon (`AEDBaseEnv.eval_horizon`, twice the
+longest clean expert episode) whatever happens, success latched at any step: ManiSkill's own
+evaluation convention (terminations ignored, `success_once`). A rollout's length then tells
+nothing of its outcome, so a detector cannot score well by knowing how long a rollout ran.
+The first success and irrecoverable-failure steps are stored with each rollout, so the
+paper's ending (stop at the first success) is a view of the same rollouts (`paper_length`);
+`--ending success` records that ending instead. Work is cut into shards of (environment,
+index range) exactly like `aed collect`: seeds derive from the shard's identity, so any number of workers (or Ray)
 gives the same rollouts, and a killed run re-run with the same arguments redoes only the
 shards that were never committed.
 """
@@ -31,6 +36,7 @@ from aed_eval.checks import task_class
 from aed_eval.collect import episode_seed, plain_value, prepare_folder
 from aed_eval.executors import execute
 from aed_eval.layout import RunLayout
+from aed_eval.metrics import rate_interval
 from aed_eval.scoring import Demonstrations
 from aed_tasks import trajectory
 
@@ -41,7 +47,8 @@ PROFILES: dict[str, dict[str, int | None]] = {
     "paper": {"num_envs": None, "num_episodes": 20, "num_demos": 5},
     "mini": {"num_envs": 4, "num_episodes": 5, "num_demos": 5},
 }
-IDENTITY = ("task", "split", "policy", "policy_sha256", "seed", "num_demos", "shard_size", "max_episode_steps")
+IDENTITY = ("task", "split", "policy", "policy_sha256", "seed", "num_demos", "shard_size", "horizon", "ending")
+ENDINGS = ("horizon", "success")
 
 
 @dataclass
@@ -63,7 +70,8 @@ class RolloutConfig:
     profile: Literal["paper", "mini"] = "mini"
     """paper: every environment, 20 episodes each; mini: 4 environments, 5 episodes each."""
     envs: tuple[int, ...] = ()
-    """Explicit environment indices (default: the first `num_envs` that have demonstrations)."""
+    """Explicit environment indices (default: the first `num_envs` that have demonstrations and,
+    in the base split, that the policy did not train on)."""
     num_envs: int | None = None
     """Use the first N environments (default: the profile's; paper: all)."""
     num_episodes: int | None = None
@@ -78,8 +86,12 @@ class RolloutConfig:
     """local: a process pool on this machine; ray: Ray actors (pip install aed-toolkit[ray])."""
     ray_address: str | None = None
     """Ray cluster address."""
-    max_episode_steps: int | None = None
-    """Time limit of an episode (default: the task's)."""
+    horizon: int | None = None
+    """Steps of every rollout (default: the task's evaluation horizon)."""
+    ending: Literal["horizon", "success"] = "horizon"
+    """horizon: every rollout runs `horizon` steps, success latched (the length tells nothing of
+    the outcome); success: the paper's ending, a rollout stops at its first success (or an
+    irrecoverable failure), so successful rollouts are shorter."""
     seed: int = 0
     """Root seed; every episode's seed derives from it (the same for every policy)."""
     runs: Path = Path("runs")
@@ -100,10 +112,14 @@ class RolloutConfig:
             raise ValueError(f"profile={self.profile!r}: known {sorted(PROFILES)}")
         if self.envs and self.num_envs is not None:
             raise ValueError(f"envs={self.envs} and num_envs={self.num_envs}: give one of them")
+        if self.ending not in ENDINGS:
+            raise ValueError(f"ending={self.ending!r}: known {ENDINGS}")
         for name, value in PROFILES[self.profile].items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
-        for name in ("num_episodes", "num_demos", "shard_size", "workers", "max_episode_steps"):
+        if self.horizon is None:
+            self.horizon = task_cls.eval_horizon
+        for name in ("num_envs", "num_episodes", "num_demos", "shard_size", "workers", "horizon"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
         size = task_cls.catalogue_sizes[self.split]
@@ -170,18 +186,22 @@ class RolloutResult:
 
 
 class RolloutRunner:
-    """Runs rollout shards in one process: one env, one policy, the demos of each environment."""
+    """Runs rollout shards in one process: one env, one policy, the demos of each environment.
 
-    def __init__(self, cfg: RolloutConfig):
+    `policy` replaces the checkpoint's policy (anything with `reset(demos)` and `act(obs)`;
+    tests drive the real rollout code with scripted ones).
+    """
+
+    def __init__(self, cfg: RolloutConfig, policy: Any = None):
         import gymnasium as gym
 
         import aed_tasks
         from aed_models.policies import load_policy
 
         self.cfg = cfg
-        self.policy = load_policy(cfg.checkpoint).eval()
-        limit = {} if cfg.max_episode_steps is None else {"max_episode_steps": cfg.max_episode_steps}
-        env = gym.make(aed_tasks.env_id(cfg.task, cfg.split), obs_mode="rgbd", **limit)
+        self.policy = load_policy(cfg.checkpoint).eval() if policy is None else policy
+        env = gym.make(aed_tasks.env_id(cfg.task, cfg.split), obs_mode="rgbd", max_episode_steps=cfg.horizon,
+                       terminate_on_success=False)  # fmt: skip
         self.env = trajectory.make_step_recorder(env, record_env_states=True)
         self.demos = Demonstrations(Path(cfg.demos), cfg.split, cfg.num_demos)
 
@@ -195,7 +215,8 @@ class RolloutRunner:
             for k in range(shard.start, shard.start + shard.count):
                 episode = self.episode(shard, k)
                 writer.add(episode, self.env.take(), role=ROLE, policy=self.cfg.policy,
-                           policy_sha256=self.cfg.policy_sha256, labels_known=False, index=k)  # fmt: skip
+                           policy_sha256=self.cfg.policy_sha256, labels_known=False, index=k, ending=self.cfg.ending,
+                           success_step=first_step(episode.success), fail_step=first_step(episode.fail))  # fmt: skip
                 steps += len(episode)
                 successes += episode.succeeded
                 if tick is not None:
@@ -205,7 +226,7 @@ class RolloutRunner:
         return RolloutResult(shard.stem, shard.count, steps, successes, time.perf_counter() - start)
 
     def episode(self, shard: RolloutShard, k: int) -> Any:
-        """One rollout until success, irrecoverable failure or the time limit."""
+        """One rollout: `horizon` steps, or (the paper's ending) until success or irrecoverable failure."""
         import torch
 
         from aed_tasks.episode import Episode
@@ -215,15 +236,15 @@ class RolloutRunner:
         with torch.no_grad():
             self.policy.reset(self.demos[shard.env_index])
             actions, success, fail, stage = [], [], [], []
-            done = False
-            while not done:
+            for _ in range(self.cfg.horizon):
                 action = self.policy.act(obs)
-                obs, _, terminated, truncated, info = self.env.step(action)
+                obs, _, _, _, info = self.env.step(action)  # terminations ignored: success is latched
                 actions.append(np.asarray(action, dtype=np.float32))
                 success.append(_flag(info["success"]))
                 fail.append(_flag(info["fail"]))
                 stage.append(int(np.asarray(info["stage"]).reshape(-1)[0]))
-                done = _flag(terminated) or _flag(truncated)
+                if self.cfg.ending == "success" and (success[-1] or fail[-1]):
+                    break
         base = self.env.unwrapped
         return Episode(
             env_id=base.spec.id, task=shard.task, split=shard.split, env_index=base.env_index, seed=seed,
@@ -236,6 +257,19 @@ class RolloutRunner:
 def _flag(x: Any) -> bool:
     x = x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
     return bool(x.reshape(-1)[0])
+
+
+def first_step(flags: np.ndarray) -> int | None:
+    """Index of the first step whose flag is set (None: never)."""
+    hits = np.flatnonzero(np.asarray(flags, dtype=bool))
+    return int(hits[0]) if len(hits) else None
+
+
+def paper_length(entry: dict[str, Any]) -> int:
+    """Actions of a stored rollout under the paper's ending: up to and including its first
+    success or irrecoverable-failure step (the whole rollout when neither happened)."""
+    ends = [entry.get(k) for k in ("success_step", "fail_step") if entry.get(k) is not None]
+    return min(int(entry["elapsed_steps"]), min(ends) + 1) if ends else int(entry["elapsed_steps"])
 
 
 @dataclass
@@ -262,6 +296,10 @@ def run_rollouts(cfg: RolloutConfig) -> RolloutSummary:
     if not available:
         raise FileNotFoundError(f"{cfg.demos}: no {cfg.split} demonstrations; collect them with "
                                 f"`aed collect --task {cfg.task} --split {cfg.split}`")  # fmt: skip
+    if cfg.split == "base" and not cfg.envs:
+        available = [e for e in available if e not in policy_train_envs(Path(cfg.checkpoint))]
+        if not available:
+            raise ValueError(f"{cfg.demos}: every base environment with demonstrations trained the policy; collect more")
     shards = plan_shards(cfg, available)
     todo = prepare_folder(cfg, shards)
     summary = RolloutSummary(Path(cfg.out), len(shards), len(shards) - len(todo))
@@ -273,6 +311,52 @@ def run_rollouts(cfg: RolloutConfig) -> RolloutSummary:
         execute(todo, partial(RolloutRunner, cfg), on_done=summary.results.append, workers=cfg.workers,
                 executor=cfg.executor, ray_address=cfg.ray_address, progress=bar)  # fmt: skip
     return summary
+
+
+@dataclass
+class StoredRollouts:
+    """A policy's stored rollouts: their refs and json entries, how they ended, and their horizon."""
+
+    refs: list[trajectory.EpisodeRef]
+    entries: list[dict[str, Any]]
+    policy_sha256: str
+    horizon: int
+    ending: str
+
+
+def stored_rollouts(root: Path, policy: str, policy_sha256: str | None = None, hint: str = "`aed rollout`") -> StoredRollouts:
+    """The rollouts of `policy` in `root`: one checkpoint (`policy_sha256` when given), one ending."""
+    collection = trajectory.scan_collection(root)
+    refs, entries, shas, endings, horizon = [], [], set(), set(), 0
+    for shard in collection.shards:
+        horizon = max(horizon, int(shard.body["env_info"].get("max_episode_steps") or 0))
+        for entry, ref in zip(shard.body["episodes"], shard.episodes, strict=True):
+            if ref.role != ROLE:
+                continue
+            if entry.get("policy") != policy:
+                raise ValueError(f"{shard.json_path}: rollouts of policy {entry.get('policy')!r}, not {policy!r}")
+            shas.add(entry.get("policy_sha256"))
+            endings.add(entry.get("ending", "success"))  # rollouts recorded before endings stopped at success
+            refs.append(ref)
+            entries.append(entry)
+    if not refs:
+        raise ValueError(f"{root}: no rollouts of {policy}; run {hint} first")
+    if len(shas) != 1 or len(endings) != 1:
+        raise ValueError(f"{root}: rollouts of {len(shas)} policy checkpoints and {len(endings)} endings; keep one of each per folder")
+    sha = shas.pop()
+    if policy_sha256 is not None and sha != policy_sha256:
+        raise ValueError(f"{root}: rolled out by policy checkpoint {sha[:12]}, not the current {policy_sha256[:12]}; "
+                         f"re-run {hint}")  # fmt: skip
+    return StoredRollouts(refs, entries, sha, horizon, endings.pop())
+
+
+def policy_train_envs(checkpoint: Path) -> set[int]:
+    """The base environments a policy checkpoint trained on."""
+    from aed_eval.checks import trained_envs
+    from aed_models.checkpoint import load_checkpoint
+    from aed_models.policies import FAMILY
+
+    return trained_envs(f"policy {checkpoint}", load_checkpoint(checkpoint, family=FAMILY).extra)[1]
 
 
 def success_rates(root: Path) -> dict[int, float]:
@@ -289,9 +373,10 @@ def rollout(cfg: Annotated[RolloutConfig, tyro.conf.arg(name="")]) -> int:
     """Roll a trained policy out in a split's environments (resumes into --out)."""
     start = time.perf_counter()
     summary = run_rollouts(cfg)
-    rates = success_rates(summary.out)
-    values = np.asarray(list(rates.values()))
+    outcomes = [ref.success for ref in trajectory.scan_collection(summary.out).episodes() if ref.role == ROLE]
+    low, high = rate_interval(np.asarray(outcomes))
     print(f"{summary.out}: {summary.planned} shards ({summary.skipped} already there), ran {summary.episodes} "
-          f"rollouts in {time.perf_counter() - start:.1f} s; success rate over {len(rates)} environments "
-          f"{100 * values.mean():.1f} ± {100 * values.std():.1f}%")  # fmt: skip
+          f"rollouts in {time.perf_counter() - start:.1f} s; success rate {100 * np.mean(outcomes):.1f}% "
+          f"[{100 * low:.1f}, {100 * high:.1f}] ({sum(outcomes)}/{len(outcomes)}, {cfg.horizon} steps each"
+          f"{', stopped at success' if cfg.ending == 'success' else ''})")  # fmt: skip
     return 0

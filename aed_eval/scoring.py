@@ -21,6 +21,7 @@ from aed_tasks import trajectory
 logger = logging.getLogger(__name__)
 
 DETECTOR_NAMES = ("svdd_ed", "taskemb_ed", "lstm_ed", "dct_ed", "probe", "rnd_oe")
+PAPER_DETECTORS = DETECTOR_NAMES[:5]  # the paper's five: the only ones its summary rows rank
 
 
 @dataclass

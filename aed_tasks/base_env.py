@@ -82,7 +82,11 @@ class AEDBaseEnv(BaseEnv):
     # the failed first attempts of sub-optimal demonstrations
     recoverable_errors: ClassVar[tuple[str, ...]] = ()
     num_env_distractors: ClassVar[int] = 0
-    max_episode_steps: ClassVar[int] = 200
+    max_episode_steps: ClassVar[int] = 200  # the registered time limit: no expert episode reaches it
+    # steps of every policy rollout (aed rollout), whatever its outcome, so that its length tells
+    # nothing: twice the longest clean expert episode (imitating policies are slower than the
+    # expert), at most the time limit; results/expert_lengths/ has the lengths
+    eval_horizon: ClassVar[int] = 200
 
     def __init__(
         self,

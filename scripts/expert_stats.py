@@ -88,11 +88,13 @@ def measure(kind: str | None, runs: list[tuple[str, int, int]], envs: dict, clea
             problems.append(f"{split} env {env_index} seed {seed}: {what}")
     return {
         "kind": kind or "clean", "episodes": len(outcomes),
-        "success_rate": float(np.mean(outcomes)), "target": "success" if kind is None else "failure",
+        "success_rate": float(np.mean(outcomes)) if outcomes else float("nan"), "target": "success" if kind is None else "failure",
         "named_failure_rate": float(np.mean(named)) if named else None,
         "departure_rate": float(np.mean(departs)) if departs else None,
         "truncated": int(truncated),
         "mean_length": float(np.mean(lengths)) if lengths else 0.0,
+        "min_length": int(np.min(lengths)) if lengths else 0,
+        "max_length": int(np.max(lengths)) if lengths else 0,
         "seconds_per_episode": (time.perf_counter() - start) / max(len(outcomes), 1),
         "unsuccessful_clean": failures, "problems": problems,
     }  # fmt: skip

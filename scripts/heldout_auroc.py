@@ -1,7 +1,8 @@
 """Frame-level AUROC of trained detectors on held-out base environments (issue #10's check).
 
-Detectors are trained on the first base environments of a collection; the environments after
-them were never seen in training. Every agent success and labelled agent failure of those
+Detectors and policies are trained on the first base environments of a collection; the
+environments after them were never seen in training (the script refuses an environment any
+compared model, the policy included, trained on, unless --allow-trained-envs). Every agent success and labelled agent failure of those
 environments is scored offline by every detector (with each policy's features for the
 policy-dependent ones), and the frame-level AUROC (failure frames after the onset against
 every other frame) is reported per detector and policy, beside the `time_only` reference
@@ -25,6 +26,7 @@ import tyro
 
 from aed_eval import metrics
 from aed_eval.calibrate import load_policy_checked
+from aed_eval.checks import check_held_out
 from aed_eval.layout import RunLayout
 from aed_eval.logs import setup_logging
 from aed_eval.scoring import DETECTOR_NAMES, Demonstrations, EpisodeScorer, load_checked_detector
@@ -49,6 +51,8 @@ class Config:
     """Time bin (steps) of the time-matched AUROC."""
     out: Path | None = None
     """JSON output (default: <runs>/<task>/heldout_auroc.json)."""
+    allow_trained_envs: bool = False
+    """Score models on environments they trained on (a diagnostic, marked in the output)."""
 
 
 def frame_labels(refs: list[trajectory.EpisodeRef]) -> list[np.ndarray]:
@@ -80,6 +84,10 @@ def main(cfg: Config) -> dict:
         start = time.perf_counter()
         policy, sha = load_policy_checked(layout.policy(cfg.task, policy_name))
         detectors = [load_checked_detector(layout.detector(cfg.task, d, policy_name), d, cfg.task, sha) for d in cfg.detectors]
+        models = {f"policy {policy_name}": policy.checkpoint_extra,
+                  **{f"detector {d.name}": d.model.checkpoint_extra for d in detectors}}  # fmt: skip
+        overlap = check_held_out(models, "base", cfg.envs, "heldout_auroc", cfg.allow_trained_envs)
+        results.setdefault("trained_env_overlap", {}).update(overlap)
         scorer = EpisodeScorer(detectors, policy, demos)
         scores: dict[str, list[np.ndarray]] = {d.name: [] for d in detectors}
         for ref in refs:
@@ -100,7 +108,8 @@ def main(cfg: Config) -> dict:
 
 def format_table(results: dict, cfg: Config) -> str:
     auroc, matched = results["auroc"], results["time_matched"]
-    lines = [f"Frame-level AUROC / time-matched AUROC, {results['task']} held-out base environments {results['envs']} "
+    flag = "DIAGNOSTIC (environments a model trained on): " if results.get("trained_env_overlap") else ""
+    lines = [f"{flag}Frame-level AUROC / time-matched AUROC, {results['task']} held-out base environments {results['envs']} "
              f"({results['episodes']} episodes, {results['failures']} failures); time_only = "
              f"{auroc['time_only']:.3f} / {matched['time_only']:.3f}", "",
              "| policy | " + " | ".join(cfg.detectors) + " |", "|---|" + "---:|" * len(cfg.detectors)]  # fmt: skip
@@ -112,4 +121,8 @@ def format_table(results: dict, cfg: Config) -> str:
 
 if __name__ == "__main__":
     setup_logging()
-    main(tyro.cli(Config))
+    try:
+        main(tyro.cli(Config))
+    except ValueError as e:
+        logger.error("%s", e)
+        raise SystemExit(2) from None

@@ -31,7 +31,8 @@ def pipeline(tmp_path_factory) -> tuple[DemoConfig, Path]:
     runs = tmp_path_factory.mktemp("runs")
     cfg = DemoConfig(task=TASK, policies=("naive_dc",), detectors=("probe", "lstm_ed"), runs=runs, train_envs=1,
                      calibration_envs=1, novel_envs=1, num_demos=1, num_successes=2, num_failures=2, labelled=1,
-                     rollouts=2, policy_epochs=1, detector_epochs=1, max_episode_steps=30, alpha=0.5, workers=1)  # fmt: skip
+                     rollouts=2, calibration_rollouts=2, policy_epochs=1, detector_epochs=1, horizon=30, alphas=(0.5,),
+                     workers=1)  # fmt: skip
     report, times = run_demo(cfg)
     assert set(times) >= {"collect base split", "train policies", "train detectors", "evaluate", "report"}
     return cfg, report
@@ -43,12 +44,18 @@ def test_every_stage_leaves_what_the_next_reads(pipeline):
     layout = RunLayout(cfg.runs)
     results = json.loads((layout.evaluation(TASK, "naive_dc") / "results.json").read_text())
     assert results["rollouts"]["count"] == 2 and results["rollouts"]["horizon"] == 30
+    assert results["endings"] == ["horizon", "success"] and not results["diagnostic"]
     assert set(results["detectors"]) == {"probe", "lstm_ed"} and set(results["references"]) == {"time_only", "random"}
     for row in results["detectors"].values():
-        assert "calibrated" in row and 0.0 <= row["calibrated"]["tpr"] <= 1.0
-        assert 0.0 <= row["labelled"]["frame_auroc"] <= 1.0 and sum(row["labelled"]["delays"]["counts"].values()) == 1
-    calibration = json.loads((layout.detector(TASK, "probe", "naive_dc").parent / "calibration.json").read_text())
-    assert calibration["envs"] == [1] and calibration["num_rollouts"] == 2 and np.isfinite(calibration["threshold"])
+        rates = row["horizon"]["calibrated"]["expert@0.5"]
+        assert 0.0 <= rates["tpr"] <= 1.0 and len(row["horizon"]["auroc_interval"]) == 2
+        assert 0.0 <= row["labelled"]["frame_auroc"] <= 1.0
+        assert sum(row["labelled"]["delays"]["expert@0.5"]["counts"].values()) == 1
+    folder = layout.detector(TASK, "probe", "naive_dc").parent
+    expert = json.loads((folder / "calibration-expert.json").read_text())
+    assert expert["envs"] == [1] and expert["num_rollouts"] == 2 and np.isfinite(expert["thresholds"]["0.5"])
+    policy = json.loads((folder / "calibration.json").read_text())  # an untrained policy never succeeds
+    assert policy["envs"] == [1] and policy["num_rollouts"] == 0 and policy["thresholds"] == {"0.5": None}
     scores = json.loads((layout.evaluation(TASK, "naive_dc") / "scores.json").read_text())
     assert [len(s) for s in scores["rollouts"]["scores"]["probe"]] == [31, 31]
     text = report.read_text()
@@ -74,7 +81,7 @@ def test_a_rerun_reuses_finished_stages(pipeline):
     before = checkpoint.stat().st_mtime_ns
     _, times = run_demo(cfg)
     assert times["collect base split"] < 30 and times["roll out policies"] < 30, times
-    assert checkpoint.stat().st_mtime_ns >= before
+    assert checkpoint.stat().st_mtime_ns == before  # not retrained
 
 
 @pytest.mark.parametrize(("args", "named"), [
@@ -128,8 +135,12 @@ def test_heldout_auroc_script_scores_every_detector_of_a_runs_layout(pipeline, t
     cfg, _ = pipeline
     script = load_script("heldout_auroc")
     out = tmp_path / "auroc.json"
-    results = script.main(script.Config(task=TASK, runs=cfg.runs, envs=(0,), policies=("naive_dc",),
-                                        detectors=("probe", "lstm_ed"), num_demos=1, out=out))  # fmt: skip
+    config = {"task": TASK, "runs": cfg.runs, "envs": (0,), "policies": ("naive_dc",), "detectors": ("probe", "lstm_ed"),
+              "num_demos": 1, "out": out}  # fmt: skip
+    with pytest.raises(ValueError, match=r"policy naive_dc trained on base environments \[0\]"):
+        script.main(script.Config(**config))  # only environment 0 has failures, and the models trained there
+    results = script.main(script.Config(**config, allow_trained_envs=True))
+    assert results["trained_env_overlap"]["policy naive_dc"] == [0]
     assert results["failures"] == 2 and json.loads(out.read_text()) == results
     for kind in ("auroc", "time_matched"):
         assert 0.0 <= results[kind]["time_only"] <= 1.0 and set(results[kind]["naive_dc"]) == {"probe", "lstm_ed"}

@@ -39,7 +39,7 @@ def setting(tmp_path_factory) -> dict:
 
 def config(setting: dict, out: Path, **kwargs) -> RolloutConfig:
     return RolloutConfig(task=TASK, policy="naive_dc", checkpoint=setting["checkpoint"], demos=setting["demos"],
-                         out=out, envs=(0,), num_episodes=3, num_demos=1, shard_size=1, max_episode_steps=12,
+                         out=out, envs=(0,), num_episodes=3, num_demos=1, shard_size=1, horizon=12,
                          progress=False, **kwargs)  # fmt: skip
 
 
@@ -71,7 +71,7 @@ def test_killed_rollout_resumes_to_the_same_rollouts(uninterrupted, setting, tmp
     out = tmp_path / "interrupted"
     args = [AED, "rollout", "--task", TASK, "--policy", "naive_dc", "--checkpoint", str(setting["checkpoint"]),
             "--demos", str(setting["demos"]), "--out", str(out), "--envs", "0", "--num-episodes", "3",
-            "--num-demos", "1", "--shard-size", "1", "--max-episode-steps", "12", "--no-progress"]  # fmt: skip
+            "--num-demos", "1", "--shard-size", "1", "--horizon", "12", "--no-progress"]  # fmt: skip
     process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
     try:
         deadline = time.monotonic() + 240
@@ -107,3 +107,15 @@ def test_bad_input_is_named(setting, tmp_path):
     result = subprocess.run([AED, "rollout", "--task", TASK, "--policy", "naive_dc", "--checkpoint",
                              str(tmp_path / "missing.pt")], capture_output=True, text=True, timeout=120)  # fmt: skip
     assert result.returncode == 2 and "missing.pt" in result.stderr
+
+
+def test_workers_share_the_cores(monkeypatch):
+    from aed_eval.executors import worker_threads
+
+    monkeypatch.delenv("AED_WORKER_THREADS", raising=False)
+    assert worker_threads(2) == max(1, (os.cpu_count() or 1) // 2) and worker_threads(10**6) == 1
+    monkeypatch.setenv("AED_WORKER_THREADS", "0")
+    assert worker_threads(2) == 0  # the libraries' own defaults
+    monkeypatch.setenv("AED_WORKER_THREADS", "many")
+    with pytest.raises(ValueError, match="AED_WORKER_THREADS='many'"):
+        worker_threads(2)

@@ -85,6 +85,8 @@ def load_policy(path: Path | str, name: str | None = None, map_location: str = "
         policy.load_state_dict(ckpt.state_dict)
     except (ValueError, RuntimeError, TypeError) as e:
         raise CheckpointError(f"{path}: does not fit policy {ckpt.name!r}: {e}") from e
+    policy.checkpoint_extra = ckpt.extra  # provenance: training config and environments
+    policy.checkpoint_sha256 = ckpt.sha256
     return policy.eval()
 
 

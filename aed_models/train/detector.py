@@ -39,7 +39,12 @@ from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampl
 from aed_models.detectors import DETECTORS, FAMILY, config_from_dict, detector_config, make_detector
 from aed_models.detectors.base import to_device
 from aed_models.train.feature_cache import FeatureCache, FeatureIterations
-from aed_models.train.policy import resolve_schedule, seed_everything, select_environments
+from aed_models.train.policy import (
+    resolve_schedule,
+    seed_everything,
+    select_environments,
+    trained_on,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -222,7 +227,8 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
     del policy  # features are cached: the policy is not needed any more
     optimizer = torch.optim.RMSprop([p for p in detector.parameters() if p.requires_grad], lr=cfg.lr, weight_decay=cfg.weight_decay)
     train_config = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()}
-    provenance = {"task": cfg.task, "profile": cfg.profile, "policy_name": policy_name, "policy_sha256": policy_sha}
+    provenance = {"task": cfg.task, "profile": cfg.profile, "policy_name": policy_name, "policy_sha256": policy_sha,
+                  **trained_on(episodes)}  # fmt: skip
 
     # resume
     start_epoch, log = 0, []

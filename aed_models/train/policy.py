@@ -179,6 +179,12 @@ def select_environments(episodes: list, num_envs: int | None) -> list:
     return [e for e in episodes if e.env_index in keep]
 
 
+def trained_on(episodes: list) -> dict[str, Any]:
+    """What a checkpoint records of its training data: the split and environment indices, so
+    that evaluation and calibration can refuse to score a model where it trained."""
+    return {"train_split": "base", "train_envs": sorted({int(e.env_index) for e in episodes})}
+
+
 def rollout_actions(episodes: list) -> torch.Tensor:
     """Every action of the agent successes (what the policy is trained to output): (M, 4)."""
     by_file: dict[Path, list[str]] = defaultdict(list)
@@ -239,6 +245,7 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
     policy = make_policy(cfg.policy, policy_cfg).to(device)
     optimizer = torch.optim.RMSprop(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     train_config = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()}
+    provenance = {"train_config": train_config, **trained_on(episodes)}
 
     # resume, or start from the data's action statistics
     start_epoch, log = 0, []
@@ -283,11 +290,11 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
         save_checkpoint(last_path, family=FAMILY, name=cfg.policy, config=policy.config.to_dict(),
                         state_dict=policy.state_dict(),
                         extra={"epoch": epoch + 1, "optimizer": optimizer.state_dict(), "torch_rng": torch.get_rng_state(),
-                               "log": log, "train_config": train_config})  # fmt: skip
+                               "log": log, **provenance})  # fmt: skip
         log_path.write_text(json.dumps(log, indent=1))
 
     sha = save_checkpoint(final_path, family=FAMILY, name=cfg.policy, config=policy.config.to_dict(),
                           state_dict=policy.state_dict(),
-                          extra={"epoch": cfg.epochs, "log": log, "train_config": train_config})  # fmt: skip
+                          extra={"epoch": cfg.epochs, "log": log, **provenance})  # fmt: skip
     logger.info("wrote %s (sha256 %s)", final_path, sha[:12])
     return final_path

@@ -82,6 +82,7 @@ class BackToBoxEnv(AEDBaseEnv):
     recoverable_errors = ("no_grasp", "miss_box", "box_not_under")
     num_env_distractors = 3
     max_episode_steps = 400
+    eval_horizon = 400
 
     @classmethod
     def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:

@@ -65,6 +65,7 @@ class CloseDrawerEnv(AEDBaseEnv):
     recoverable_errors = ("not_fully_closed",)
     num_env_distractors = 3
     max_episode_steps = 200
+    eval_horizon = 200
 
     @classmethod
     def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:

@@ -129,6 +129,7 @@ class FactoryPackingEnv(AEDBaseEnv):
     error_kinds = ("product_not_in_box", "no_grasp_box", "miss_belt")
     recoverable_errors = ("product_not_in_box", "no_grasp_box", "miss_belt")
     max_episode_steps = 400
+    eval_horizon = 400
 
     # --- catalogue --------------------------------------------------------------------------
     @classmethod

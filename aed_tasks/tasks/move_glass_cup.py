@@ -78,6 +78,7 @@ class MoveGlassCupEnv(AEDBaseEnv):
     error_kinds = ("no_grasp", "spill", "off_coaster")
     recoverable_errors = ("no_grasp", "off_coaster")
     max_episode_steps = 300
+    eval_horizon = 300
 
     @classmethod
     def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:

@@ -80,6 +80,7 @@ class OrganizeTableEnv(AEDBaseEnv):
     error_kinds = ("no_grasp", "drop_while_moving", "not_fully_under")
     recoverable_errors = ("no_grasp", "drop_while_moving", "not_fully_under")
     max_episode_steps = 400
+    eval_horizon = 390
 
     @classmethod
     def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:

@@ -65,6 +65,7 @@ class PickPlaceEnv(AEDBaseEnv):
     error_kinds = ("no_grasp", "miss_place", "wrong_bowl")
     recoverable_errors = ("no_grasp", "miss_place")
     max_episode_steps = 250
+    eval_horizon = 250
 
     @classmethod
     def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:

@@ -59,6 +59,7 @@ class PressButtonEnv(AEDBaseEnv):
     recoverable_errors = ("no_touch", "not_fully_pressed")
     num_env_distractors = 3
     max_episode_steps = 200
+    eval_horizon = 200
 
     @classmethod
     def sample_objects(
