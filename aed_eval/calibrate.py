@@ -126,13 +126,12 @@ def threshold_at(calibration: dict[str, Any], alpha: float) -> float | None:
 
 
 def calibration_episodes(cfg: CalibrateConfig, policy_sha: str) -> list[trajectory.EpisodeRef]:
-    """The successful episodes of the source (the policy's base rollouts, or expert successes)."""
+    """The source's episodes: the policy's base rollouts (successful or not), or the expert's successes."""
     from aed_eval.rollout import stored_rollouts
 
     if cfg.source == "policy":
-        stored = stored_rollouts(Path(cfg.rollouts), cfg.policy, policy_sha,
-                                 hint=f"`aed rollout --task {cfg.task} --policy {cfg.policy} --split base`")  # fmt: skip
-        return [ref for ref in stored.refs if ref.success]
+        return stored_rollouts(Path(cfg.rollouts), cfg.policy, policy_sha,
+                               hint=f"`aed rollout --task {cfg.task} --policy {cfg.policy} --split base`").refs  # fmt: skip
     episodes = trajectory.scan_collection(Path(cfg.data)).episodes()
     return [e for e in episodes if e.role == "agent_success" and e.split == "base"]
 
@@ -156,14 +155,14 @@ def calibrate_detectors(cfg: CalibrateConfig) -> dict[str, dict[str, Any]]:
                  for name in cfg.detectors]  # fmt: skip
     models = {f"policy {cfg.policy}": policy.checkpoint_extra,
               **{f"detector {d.name}": d.model.checkpoint_extra for d in detectors}}  # fmt: skip
-    successes = calibration_episodes(cfg, policy_sha)
+    episodes = calibration_episodes(cfg, policy_sha)
     if cfg.envs:
         envs = sorted(cfg.envs)
     else:  # every environment of the source that no model trained on
         trained = set().union(*(trained_envs(label, extra)[1] for label, extra in models.items()))
-        envs = sorted({e.env_index for e in successes} - (set() if cfg.allow_trained_envs else trained))
+        envs = sorted({e.env_index for e in episodes} - (set() if cfg.allow_trained_envs else trained))
     overlaps = check_held_out(models, "base", envs, "calibrate", cfg.allow_trained_envs)
-    refs = [e for e in successes if e.env_index in envs]
+    refs = [e for e in episodes if e.env_index in envs and e.success]
     if not refs:
         logger.warning("calibrate %s: no successful %s episodes in held-out base environments %s; no threshold",
                        cfg.policy, cfg.source, envs)  # fmt: skip
@@ -185,7 +184,8 @@ def calibrate_detectors(cfg: CalibrateConfig) -> dict[str, dict[str, Any]]:
                            d.name, len(values), short, [needed(a) for a in short])  # fmt: skip
         body = {
             "detector": d.name, "source": cfg.source, "thresholds": thresholds, "num_rollouts": len(values),
-            "envs": envs, "episodes": str(cfg.rollouts if cfg.source == "policy" else cfg.data),
+            "of_rollouts": sum(e.env_index in envs for e in episodes), "envs": envs,
+            "episodes": str(cfg.rollouts if cfg.source == "policy" else cfg.data),
             "detector_sha256": d.model.checkpoint_sha256, "policy_sha256": policy_sha,
             "diagnostic": bool(overlaps), "trained_env_overlap": overlaps,
         }  # fmt: skip
@@ -203,6 +203,6 @@ def calibrate(cfg: Annotated[CalibrateConfig, tyro.conf.arg(name="")], output: L
     for name, body in results.items():
         cells = ", ".join(f"alpha {a}: {'-' if t is None else f'{t:.4g}'}" for a, t in body["thresholds"].items())
         flag = " (DIAGNOSTIC: environments a model trained on)" if body["diagnostic"] else ""
-        print(f"{name}: {cells} from {body['num_rollouts']} {cfg.source} successes in base environments "
-              f"{body['envs']}{flag}")  # fmt: skip
+        print(f"{name}: {cells} from {body['num_rollouts']} {cfg.source} successes (of {body['of_rollouts']} "
+              f"episodes) in base environments {body['envs']}{flag}")  # fmt: skip
     return 0

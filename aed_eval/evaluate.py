@@ -254,7 +254,7 @@ def evaluate_policy(cfg: EvaluateConfig) -> dict[str, Any]:
 
 
 def _calibration_summary(body: dict[str, Any]) -> dict[str, Any]:
-    return {k: body[k] for k in ("thresholds", "num_rollouts", "envs", "diagnostic")}
+    return {k: body.get(k) for k in ("thresholds", "num_rollouts", "of_rollouts", "envs", "diagnostic")}
 
 
 def write_results(out: Path, results: dict[str, Any], scored: dict[str, tuple[list, dict[str, list[np.ndarray]]]]) -> None:

@@ -249,7 +249,7 @@ def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
     ax.axhline(0.5, color="grey", linestyle=":")
     ax.set_xticks(np.arange(len(rows)), list(rows), rotation=30, ha="right", fontsize=8)
     ax.set(ylim=(0, 1), ylabel="rollout AUROC [95%]", title=f"{case['task']} / {case['policy']}")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
     written.append(out / f"auroc_{stem}.png")
     fig.savefig(written[-1], dpi=120)

@@ -55,7 +55,8 @@ def test_every_stage_leaves_what_the_next_reads(pipeline):
     expert = json.loads((folder / "calibration-expert.json").read_text())
     assert expert["envs"] == [1] and expert["num_rollouts"] == 2 and np.isfinite(expert["thresholds"]["0.5"])
     policy = json.loads((folder / "calibration.json").read_text())  # an untrained policy never succeeds
-    assert policy["envs"] == [1] and policy["num_rollouts"] == 0 and policy["thresholds"] == {"0.5": None}
+    assert policy["envs"] == [1] and (policy["num_rollouts"], policy["of_rollouts"]) == (0, 2)
+    assert policy["thresholds"] == {"0.5": None}
     scores = json.loads((layout.evaluation(TASK, "naive_dc") / "scores.json").read_text())
     assert [len(s) for s in scores["rollouts"]["scores"]["probe"]] == [31, 31]
     text = report.read_text()

@@ -163,7 +163,7 @@ def base_rollouts(setting) -> Path:
 def test_calibration_uses_the_policys_successes_in_held_out_environments(setting, base_rollouts):
     (body,) = calibrate_detectors(CalibrateConfig(task=TASK, policy="naive_dc", detectors=("lstm_ed",), alphas=(0.5, 0.1),
                                                   num_demos=1, runs=setting["runs"], progress=False)).values()  # fmt: skip
-    assert body["envs"] == [1] and body["num_rollouts"] == 1 and body["source"] == "policy"
+    assert body["envs"] == [1] and body["num_rollouts"] == 1 and body["of_rollouts"] == 2 and body["source"] == "policy"
     assert np.isfinite(body["thresholds"]["0.5"]) and body["thresholds"]["0.1"] is None  # 1 success cannot promise 10%
     assert not body["diagnostic"]
 

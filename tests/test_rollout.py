@@ -119,3 +119,12 @@ def test_workers_share_the_cores(monkeypatch):
     monkeypatch.setenv("AED_WORKER_THREADS", "many")
     with pytest.raises(ValueError, match="AED_WORKER_THREADS='many'"):
         worker_threads(2)
+
+
+@pytest.mark.slow
+def test_bench_workers_script_runs(setting, tmp_path):
+    from tests.helpers import load_script
+
+    bench = load_script("bench_workers")
+    result = bench.main(bench.Config(demos=setting["demos"], envs=(0,), horizon=3, repeats=1, out=tmp_path / "bench.json"))
+    assert len(result["seconds"]["share"]) == len(result["seconds"]["defaults"]) == 1 and result["speedup"] > 0
