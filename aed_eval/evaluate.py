@@ -13,8 +13,9 @@ rollouts (resampled within each outcome class):
   with `aed collect --split novel`), when given: frame-level AUROC and detection delays.
 
 Two reference rows are computed the same way: `time_only` (score = step / horizon) and
-`random`. Under the default ending every rollout has the same length, so both sit at chance
-by construction; under the paper's ending they show how much of a number is length.
+`random`. Under the default ending every rollout has the same length, so `time_only` scores
+exactly 0.5 and `random` 0.5 in expectation; under the paper's ending they show how much of a
+number is length.
 A model is never scored on an environment it trained on (`--allow-trained-envs` makes a
 diagnostic, marked as such). Results land in `runs/<task>/<policy>/eval/`: `results.json`,
 `results.md` and `scores.json` (every episode's per-frame scores, for `aed report`'s plots).
@@ -35,7 +36,7 @@ from aed_eval import metrics
 from aed_eval.calibrate import SOURCES, load_policy_checked, read_calibration, threshold_at
 from aed_eval.checks import check_detectors, check_held_out, task_class
 from aed_eval.layout import RunLayout
-from aed_eval.rollout import paper_length, stored_rollouts
+from aed_eval.rollout import paper_ending, stored_rollouts
 from aed_eval.scoring import (
     DETECTOR_NAMES,
     Demonstrations,
@@ -116,7 +117,6 @@ def stats(values: list[int]) -> dict[str, float]:
 class EndingView:
     """The rollouts as one ending sees them: frames per rollout and outcome."""
 
-    ending: str
     frames: list[int]  # T + 1 per rollout
     failed: np.ndarray
 
@@ -126,16 +126,11 @@ class EndingView:
 
 def ending_views(entries: list[dict[str, Any]], recorded: str) -> dict[str, EndingView]:
     """The recorded ending, and the paper's as a view of horizon rollouts (cut at first success)."""
-    full = EndingView(recorded, [int(e["elapsed_steps"]) + 1 for e in entries],
-                      np.asarray([not e["success"] for e in entries]))  # fmt: skip
+    full = EndingView([int(e["elapsed_steps"]) + 1 for e in entries], np.asarray([not e["success"] for e in entries]))
     if recorded != "horizon":
         return {recorded: full}
-
-    def paper_success(e: dict[str, Any]) -> bool:
-        return e.get("success_step") is not None and (e.get("fail_step") is None or e["success_step"] <= e["fail_step"])
-
-    paper = EndingView("success", [paper_length(e) + 1 for e in entries], np.asarray([not paper_success(e) for e in entries]))
-    return {"horizon": full, "success": paper}
+    paper = [paper_ending(e) for e in entries]
+    return {"horizon": full, "success": EndingView([n + 1 for n, _ in paper], np.asarray([not ok for _, ok in paper]))}
 
 
 def success_rate(refs: list[trajectory.EpisodeRef], seed: int, num: int) -> dict[str, Any]:
@@ -176,8 +171,8 @@ def labelled_metrics(scores: list[np.ndarray], refs: list[trajectory.EpisodeRef]
     result: dict[str, Any] = {"frame_auroc": metrics.frame_auroc(scores, labels), "frame_auroc_interval": interval,
                               "episodes": len(refs), "delays": {}}  # fmt: skip
     onsets = [(s, r.error_onset + 1) for s, r in zip(scores, refs, strict=True) if r.error_onset is not None]
-    for key, threshold in thresholds.items():
-        if onsets:
+    if onsets:
+        for key, threshold in thresholds.items():
             result["delays"][key] = metrics.detection_delays([s for s, _ in onsets], [o for _, o in onsets], threshold, cfg.window)
     return result
 

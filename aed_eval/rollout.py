@@ -12,7 +12,7 @@ longest clean expert episode) whatever happens, success latched at any step: Man
 evaluation convention (terminations ignored, `success_once`). A rollout's length then tells
 nothing of its outcome, so a detector cannot score well by knowing how long a rollout ran.
 The first success and irrecoverable-failure steps are stored with each rollout, so the
-paper's ending (stop at the first success) is a view of the same rollouts (`paper_length`);
+paper's ending (stop at the first success) is a view of the same rollouts (`paper_ending`);
 `--ending success` records that ending instead. Work is cut into shards of (environment,
 index range) exactly like `aed collect`: seeds derive from the shard's identity, so any number of workers (or Ray)
 gives the same rollouts, and a killed run re-run with the same arguments redoes only the
@@ -265,11 +265,13 @@ def first_step(flags: np.ndarray) -> int | None:
     return int(hits[0]) if len(hits) else None
 
 
-def paper_length(entry: dict[str, Any]) -> int:
-    """Actions of a stored rollout under the paper's ending: up to and including its first
-    success or irrecoverable-failure step (the whole rollout when neither happened)."""
-    ends = [entry.get(k) for k in ("success_step", "fail_step") if entry.get(k) is not None]
-    return min(int(entry["elapsed_steps"]), min(ends) + 1) if ends else int(entry["elapsed_steps"])
+def paper_ending(entry: dict[str, Any]) -> tuple[int, bool]:
+    """(actions, succeeded) of a stored rollout under the paper's ending: it stops after its
+    first success or irrecoverable-failure step, whichever comes first (never: the whole rollout)."""
+    success, fail = entry.get("success_step"), entry.get("fail_step")
+    ends = [step for step in (success, fail) if step is not None]
+    actions = min(int(entry["elapsed_steps"]), min(ends) + 1) if ends else int(entry["elapsed_steps"])
+    return actions, success is not None and (fail is None or success <= fail)
 
 
 @dataclass
@@ -319,7 +321,6 @@ class StoredRollouts:
 
     refs: list[trajectory.EpisodeRef]
     entries: list[dict[str, Any]]
-    policy_sha256: str
     horizon: int
     ending: str
 
@@ -347,7 +348,7 @@ def stored_rollouts(root: Path, policy: str, policy_sha256: str | None = None, h
     if policy_sha256 is not None and sha != policy_sha256:
         raise ValueError(f"{root}: rolled out by policy checkpoint {sha[:12]}, not the current {policy_sha256[:12]}; "
                          f"re-run {hint}")  # fmt: skip
-    return StoredRollouts(refs, entries, sha, horizon, endings.pop())
+    return StoredRollouts(refs, entries, horizon, endings.pop())
 
 
 def policy_train_envs(checkpoint: Path) -> set[int]:
@@ -357,15 +358,6 @@ def policy_train_envs(checkpoint: Path) -> set[int]:
     from aed_models.policies import FAMILY
 
     return trained_envs(f"policy {checkpoint}", load_checkpoint(checkpoint, family=FAMILY).extra)[1]
-
-
-def success_rates(root: Path) -> dict[int, float]:
-    """Success rate of the stored rollouts of each environment."""
-    per_env: dict[int, list[bool]] = {}
-    for ref in trajectory.scan_collection(root).episodes():
-        if ref.role == ROLE:
-            per_env.setdefault(ref.env_index, []).append(ref.success)
-    return {env: float(np.mean(v)) for env, v in sorted(per_env.items())}
 
 
 # --- command -----------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ from aed_eval.rollout import (
     ROLE,
     RolloutConfig,
     RolloutRunner,
-    paper_length,
+    paper_ending,
     plan_shards,
     stored_rollouts,
 )
@@ -132,7 +132,8 @@ def test_the_papers_ending_stops_at_success_and_is_a_view_of_the_default(endings
     success, failure = endings["success"]
     assert success["success"] and not failure["success"]
     assert success["elapsed_steps"] == success["success_step"] + 1 < failure["elapsed_steps"] == HORIZON
-    assert paper_length(endings["horizon"][0]) == success["elapsed_steps"]  # the view equals the option
+    assert paper_ending(endings["horizon"][0]) == (success["elapsed_steps"], True)  # the view equals the option
+    assert paper_ending(endings["horizon"][1]) == (HORIZON, False)
     view = ending_views(endings["horizon"], "horizon")["success"]
     assert view.frames == [e["elapsed_steps"] + 1 for e in endings["success"]]
     time_only = metrics.rollout_maxima(metrics.time_only_scores(view.frames, HORIZON))
