@@ -1,0 +1,341 @@
+"""What the code produces, summarised: the resolved recipes, trained weights and episodes.
+
+`tests/fixtures/fingerprint.json` was written by this module before the presets redesign (#21);
+`tests/test_fingerprint.py` checks that the code still produces it. Regenerate only for an
+intended change of behaviour: `python -m tests.fingerprint --write`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+STORED = Path(__file__).with_name("fixtures") / "fingerprint.json"
+TASKS = (
+    "CloseDrawer",
+    "PressButton",
+    "PickPlace",
+    "MoveGlassCup",
+    "OrganizeTable",
+    "BackToBox",
+    "FactoryPacking",
+)
+PROFILES = ("mini", "paper")
+TRAIN_FIELDS = ("epochs", "num_envs", "max_frames", "rollout_frames", "shift", "lr", "weight_decay",
+                "data", "out", "augment")  # fmt: skip
+
+
+def plain(x: Any) -> Any:
+    """JSON-comparable form: tuples as lists, paths as strings, dataclasses as dicts."""
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        return plain(dataclasses.asdict(x))
+    if isinstance(x, dict):
+        return {str(k): plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [plain(v) for v in x]
+    if isinstance(x, Path):
+        return str(x)
+    return x
+
+
+def train_fields(cfg: Any) -> dict[str, Any]:
+    """A training config's resolved fields, with the episodes one iteration draws."""
+    return {
+        **{k: plain(getattr(cfg, k)) for k in TRAIN_FIELDS if hasattr(cfg, k)},
+        "num_envs": cfg.num_envs or None,  # None and 0: every environment
+        "draws": list(iteration_draws(cfg)),
+    }
+
+
+def iteration_draws(cfg: Any) -> tuple[int, int, int]:
+    """(demonstrations, successes, failures) one training iteration draws from an environment."""
+    from aed_models.data import COMPOSITIONS
+
+    if hasattr(cfg, "policy") and not hasattr(cfg, "detector"):
+        c = cfg.composition
+        return (c[0], c[1], 0) if c else astuple(COMPOSITIONS["policy"])
+    from aed_models.detectors import DETECTORS
+
+    only_successes = DETECTORS[cfg.detector].model_type().trains_on == "successes"
+    if cfg.composition is None:
+        return astuple(COMPOSITIONS["svdd" if only_successes else "detector"])
+    demos, successes, failures = cfg.composition
+    return (demos, successes + failures, 0) if only_successes else (demos, successes, failures)
+
+
+def astuple(composition: Any) -> tuple[int, int, int]:
+    return (composition.num_demos, composition.num_successes, composition.num_failures)
+
+
+# --- recipes: what every command resolves to ----------------------------------------------------
+def policy_recipes() -> dict[str, Any]:
+    from aed_models.policies import POLICIES, policy_config
+    from aed_models.train.policy import TrainPolicyConfig
+
+    out = {}
+    for profile in PROFILES:
+        for name in POLICIES:
+            out[f"model/{name}/{profile}"] = plain(policy_config(name, profile).to_dict())
+            for task in TASKS:
+                out[f"train/{name}/{profile}/{task}"] = train_fields(
+                    TrainPolicyConfig(task=task, policy=name, profile=profile)
+                )
+    return out
+
+
+def detector_recipes() -> dict[str, Any]:
+    from aed_models.detectors import DETECTORS, detector_config
+    from aed_models.train.detector import TrainDetectorConfig
+
+    out = {}
+    for profile in PROFILES:
+        for name in DETECTORS:
+            out[f"model/{name}/{profile}"] = plain(detector_config(name, profile))
+            policy = "dct" if DETECTORS[name].model_type().requires_policy else None
+            for task in TASKS:
+                cfg = TrainDetectorConfig(task=task, detector=name, policy=policy, profile=profile)
+                out[f"train/{name}/{profile}/{task}"] = train_fields(cfg)
+    return out
+
+
+def protocol_counts(checkpoint: Path) -> dict[str, Any]:
+    from aed_eval.collect import CollectConfig
+    from aed_eval.rollout import RolloutConfig
+
+    keys = (
+        "num_envs",
+        "num_demos",
+        "num_successes",
+        "num_failures",
+        "num_episodes",
+        "horizon",
+        "out",
+        "demos",
+    )
+    out = {}
+    for profile in PROFILES:
+        for task in TASKS:
+            for split in ("base", "novel"):
+                collect = CollectConfig(task=task, split=split, profile=profile)
+                out[f"collect/{profile}/{task}/{split}"] = {
+                    k: plain(getattr(collect, k)) for k in keys if hasattr(collect, k)
+                }
+                rollout = RolloutConfig(
+                    task=task, split=split, profile=profile, checkpoint=checkpoint
+                )
+                out[f"rollout/{profile}/{task}/{split}"] = {
+                    k: plain(getattr(rollout, k)) for k in keys if hasattr(rollout, k)
+                }
+    return out
+
+
+def demo_stages(profile: str) -> dict[str, Any]:
+    """The collection, training and rollout configs `aed demo` builds (nothing is run)."""
+    import aed_eval.collect
+    import aed_eval.rollout
+    import aed_models.train.detector
+    import aed_models.train.policy
+    from aed_eval.demo import DemoConfig, Stages
+
+    seen: dict[str, list] = {"collect": [], "policy": [], "detector": [], "rollout": []}
+    patches = [(aed_eval.collect, "run_collection", "collect"), (aed_models.train.policy, "train_policy", "policy"),
+               (aed_models.train.detector, "train_detector", "detector"), (aed_eval.rollout, "run_rollouts", "rollout")]  # fmt: skip
+    saved = [(module, attr, getattr(module, attr)) for module, attr, _ in patches]
+    try:
+        for module, attr, key in patches:
+            setattr(module, attr, lambda cfg, *a, _key=key: seen[_key].append(cfg))
+        stages = Stages(DemoConfig(task="PressButton", profile=profile))
+        stages.collect_base()
+        stages.train_policies()
+        stages.train_detectors()
+        stages.collect_novel()
+    finally:
+        for module, attr, fn in saved:
+            setattr(module, attr, fn)
+    counts = ("envs", "num_envs", "num_demos", "num_successes", "num_failures", "out", "shard_size")
+    return {
+        "collect": [{k: plain(getattr(c, k)) for k in counts} for c in seen["collect"]],
+        "policy": [{"policy": c.policy, **train_fields(c)} for c in seen["policy"]],
+        "detector": [
+            {"detector": c.detector, "policy": c.policy, **train_fields(c)}
+            for c in seen["detector"]
+        ],
+    }
+
+
+# --- weights: tiny trainings on synthetic collections (no simulation) ---------------------------
+def tensor_summary(state_dict: dict[str, torch.Tensor]) -> dict[str, list[float]]:
+    """Per tensor: sum and sum of absolute values (float tensors only)."""
+    return {k: [float(v.double().sum()), float(v.double().abs().sum())] for k, v in sorted(state_dict.items())
+            if v.is_floating_point()}  # fmt: skip
+
+
+def policy_collection(root: Path) -> Path:
+    from aed_tasks import trajectory
+    from tests.models.test_policies import synthetic
+
+    info = {"env_id": "aed_tasks:AED-PressButton-base", "env_kwargs": {}, "max_episode_steps": 100}
+    for env_index in range(3):
+        for role, n in (("demo", 2), ("agent_success", 3)):
+            writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
+            for k in range(n):
+                writer.add(
+                    *synthetic(
+                        role,
+                        env_index,
+                        seed=100 * env_index + 10 * (role == "demo") + k,
+                        steps=8 + 2 * k,
+                    )
+                )
+            writer.commit(info, {"env_index": env_index, "group": role})
+    return root
+
+
+def detector_collection(root: Path) -> Path:
+    from aed_tasks import trajectory
+    from tests.test_data import synthetic
+
+    info = {"env_id": "aed_tasks:AED-PickPlace-base", "env_kwargs": {}, "max_episode_steps": 250}
+    for env_index in (0, 1):
+        for role in ("demo", "agent_success", "agent_failure"):
+            writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
+            for k in range(2):
+                writer.add(*synthetic(role, env_index, seed=100 * env_index + k, steps=10 + 2 * k))
+            writer.commit(info, {"env_index": env_index, "group": role})
+    return root
+
+
+def trained_policies(root: Path) -> dict[str, Any]:
+    from aed_models.policies import load_policy
+    from aed_models.train.policy import TrainPolicyConfig, train_policy
+    from tests.models.test_policies import tiny_config
+
+    data = policy_collection(root / "policy_data")
+    out = {}
+    for name in ("naive_dc", "dct", "scan"):
+        cfg = TrainPolicyConfig(
+            task="PressButton", policy=name, data=data, out=root / name, epochs=2, progress=False
+        )
+        out[name] = tensor_summary(load_policy(train_policy(cfg, tiny_config(name))).state_dict())
+    return out
+
+
+def trained_detectors(root: Path, policy_path: Path) -> dict[str, Any]:
+    from aed_models.detectors import DETECTORS, load_detector, make_detector
+    from aed_models.train.detector import TrainDetectorConfig, train_detector
+    from tests.models.test_detectors import TINY
+
+    data = detector_collection(root / "detector_data")
+    out = {}
+    for name in DETECTORS:
+        needs_policy = DETECTORS[name].model_type().requires_policy
+        sizes = {k: v for k, v in TINY[name].items() if k not in ("history_dim", "task_dim")}
+        if name == "rnd_oe":
+            sizes["max_steps"] = 16
+        torch.manual_seed(0)
+        config = make_detector(name, **TINY[name]).config if not needs_policy else None
+        if needs_policy:
+            from aed_models.detectors import detector_config
+
+            config = dataclasses.replace(detector_config(name, "mini"), **sizes)
+        cfg = TrainDetectorConfig(task="PickPlace", detector=name, policy=str(policy_path) if needs_policy else None,
+                                  data=data, out=root / name, epochs=1, progress=False)  # fmt: skip
+        out[name] = tensor_summary(load_detector(train_detector(cfg, config)).state_dict())
+    return out
+
+
+def tiny_policy_file(root: Path) -> Path:
+    from aed_models.nn import VisualHeadConfig
+    from aed_models.policies import make_policy, policy_config, save_policy
+
+    torch.manual_seed(0)
+    config = policy_config(
+        "naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)
+    )
+    path = root / "tiny_policy" / "policy.pt"
+    path.parent.mkdir(parents=True)
+    save_policy(
+        path,
+        make_policy("naive_dc", config).eval(),
+        extra={"train_split": "base", "train_envs": [0]},
+    )
+    return path
+
+
+# --- episodes: an expert collection and a policy rollout (simulated) ----------------------------
+def episode_summary(root: Path) -> list[dict[str, Any]]:
+    """Per episode: role, lengths, action sums, outcome and labels (no rendered pixels)."""
+    from aed_tasks import trajectory
+
+    rows = []
+    for ref in sorted(
+        trajectory.scan_collection(root).episodes(), key=lambda r: (r.path.name, r.traj)
+    ):
+        import h5py
+
+        with h5py.File(ref.path, "r") as h5:
+            group = h5[ref.traj]
+            actions = group["actions"][()].astype(np.float64)
+            labels = group["error_label"][()] if "error_label" in group else np.zeros(0)
+        rows.append({"shard": ref.path.name, "traj": ref.traj, "role": ref.role, "steps": int(len(actions)),
+                     "action_sum": [round(float(x), 4) for x in actions.sum(0)],
+                     "success": bool(ref.success), "labels": int(np.asarray(labels).sum())})  # fmt: skip
+    return rows
+
+
+def episodes(root: Path, policy_path: Path) -> dict[str, Any]:
+    from aed_eval.collect import CollectConfig, run_collection
+    from aed_eval.rollout import RolloutConfig, run_rollouts
+
+    state = root / "state"
+    run_collection(CollectConfig(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
+                                 num_failures=1, shard_size=1, obs_mode="state", out=state, progress=False))  # fmt: skip
+    demos = root / "novel"
+    run_collection(
+        CollectConfig(
+            task="PressButton", split="novel", envs=(0,), num_demos=1, out=demos, progress=False
+        )
+    )
+    rollouts = root / "rollouts"
+    run_rollouts(RolloutConfig(task="PressButton", policy="naive_dc", checkpoint=policy_path, split="novel",
+                               demos=demos, out=rollouts, envs=(0,), num_episodes=2, num_demos=1, horizon=6,
+                               progress=False))  # fmt: skip
+    return {
+        "collect": episode_summary(state),
+        "demos": episode_summary(demos),
+        "rollouts": episode_summary(rollouts),
+    }
+
+
+def fingerprint() -> dict[str, Any]:
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        policy_path = tiny_policy_file(root)
+        return {
+            "recipes": {**policy_recipes(), **detector_recipes()},
+            "protocol": protocol_counts(policy_path),
+            "demo": {profile: demo_stages(profile) for profile in PROFILES},
+            "policies": trained_policies(root),
+            "detectors": trained_detectors(root, policy_path),
+            "episodes": episodes(root, policy_path),
+        }
+
+
+if __name__ == "__main__":
+    from aed_eval.logs import quiet_maniskill
+
+    quiet_maniskill()
+    result = fingerprint()
+    if "--write" in sys.argv:
+        STORED.parent.mkdir(exist_ok=True)
+        STORED.write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
+        print(f"wrote {STORED}")
+    else:
+        print(json.dumps(result, indent=1, sort_keys=True)[:4000])

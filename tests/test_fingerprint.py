@@ -1,0 +1,62 @@
+"""The code still resolves the same recipes, trains the same weights and records the same
+episodes as when `tests/fixtures/fingerprint.json` was written (before the presets redesign)."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import pytest
+
+from tests import fingerprint
+
+EXACT = ("recipes", "protocol", "demo")
+CLOSE = ("policies", "detectors", "episodes")  # floats: the same up to the CPU's summation order
+
+
+def differences(expected: Any, actual: Any, path: str = "", rel: float = 0.0) -> list[str]:
+    if isinstance(expected, dict) and isinstance(actual, dict):
+        found = [f"{path}/{k}: missing" for k in sorted(set(expected) - set(actual))]
+        found += [f"{path}/{k}: unexpected" for k in sorted(set(actual) - set(expected))]
+        for k in sorted(set(expected) & set(actual)):
+            found += differences(expected[k], actual[k], f"{path}/{k}", rel)
+        return found
+    if isinstance(expected, list) and isinstance(actual, list) and len(expected) == len(actual):
+        return [
+            d
+            for i, (e, a) in enumerate(zip(expected, actual, strict=True))
+            for d in differences(e, a, f"{path}[{i}]", rel)
+        ]
+    both_numbers = all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) for x in (expected, actual)
+    )
+    if rel and both_numbers and isinstance(expected, float):
+        return (
+            []
+            if math.isclose(expected, actual, rel_tol=rel, abs_tol=1e-4)
+            else [f"{path}: {expected} != {actual}"]
+        )
+    return (
+        []
+        if expected == actual and type(expected) is type(actual)
+        else [f"{path}: {expected!r} != {actual!r}"]
+    )
+
+
+@pytest.fixture(scope="module")
+def stored_and_now():
+    return json.loads(fingerprint.STORED.read_text()), fingerprint.fingerprint()
+
+
+@pytest.mark.parametrize("part", EXACT + CLOSE)
+def test_matches_the_stored_fingerprint(stored_and_now, part):
+    stored, now = stored_and_now
+    found = differences(stored[part], now[part], part, rel=1e-3 if part in CLOSE else 0.0)
+    assert not found, "\n".join(found[:20])
+
+
+def test_the_comparison_can_fail():
+    assert differences({"a": [1.0, 2]}, {"a": [1.01, 2]}, rel=1e-3) == ["/a[0]: 1.0 != 1.01"]
+    assert differences({"a": 1}, {"b": 1}) == ["/a: missing", "/b: unexpected"]
+    assert differences({"x": (8)}, {"x": 8.0}) == ["/x: 8 != 8.0"]
