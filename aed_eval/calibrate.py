@@ -29,13 +29,13 @@ import tyro
 
 from aed_eval import metrics
 from aed_eval.checks import check_detectors, check_held_out, task_class, trained_envs
-from aed_eval.layout import RunLayout
 from aed_eval.scoring import (
     DETECTOR_NAMES,
     Demonstrations,
     EpisodeScorer,
     load_checked_detector,
 )
+from aed_models.layout import RunLayout
 from aed_tasks import trajectory
 
 logger = logging.getLogger(__name__)
@@ -70,7 +70,7 @@ class CalibrateConfig:
     allow_trained_envs: bool = False
     """Calibrate on environments a model trained on (a diagnostic; the file says so)."""
     runs: Path = Path("runs")
-    """Root of the runs folder (see aed_eval.layout)."""
+    """Root of the runs folder (see aed_models.layout)."""
     progress: bool = True
     """Show a progress bar."""
 
@@ -78,8 +78,7 @@ class CalibrateConfig:
         from aed_models.policies import POLICIES
 
         self.task = task_class(self.task).task_name
-        if self.policy not in POLICIES:
-            raise ValueError(f"policy={self.policy!r}: known {sorted(POLICIES)}")
+        POLICIES.check(self.policy)
         check_detectors(self.detectors)
         if self.source not in SOURCES:
             raise ValueError(f"source={self.source!r}: known {SOURCES}")

@@ -45,6 +45,36 @@ def _commands() -> dict[str, Callable[..., Any]]:
     }
 
 
+def _preset_commands() -> dict[str, tuple[Callable[..., Any], tuple[str, ...], Callable[..., Any]]]:
+    """Commands whose config is built from a named preset: (the preset's builder, the flags
+    that choose it, the command). Their `--help` shows the chosen preset's values."""
+    from aed_eval import collect, demo, rollout, train
+
+    return {
+        "collect": (collect.CollectConfig.from_preset, ("task", "split", "profile"), collect.collect),
+        "train-policy": (train.policy_preset, ("task", "policy", "profile"), train.train_policy),
+        "train-detector": (train.detector_preset, ("task", "detector", "profile", "policy"), train.train_detector),
+        "rollout": (rollout.RolloutConfig.from_preset, ("task", "policy", "split", "profile"), rollout.rollout),
+        "demo": (demo.DemoConfig.from_preset, ("task", "profile"), demo.demo),
+    }
+
+
+def parse_preset_command(name: str, argv: list[str]) -> Any:
+    """The config of `aed <name> ...`: the preset named by its choosing flags (the command's
+    defaults where absent) gives every other field its default, which the other flags override."""
+    import argparse
+
+    import tyro
+
+    preset, keys, command = _preset_commands()[name]
+    chooser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    for key in keys:
+        chooser.add_argument(f"--{key}")
+    chosen, rest = chooser.parse_known_args(argv)  # the preset holds the chosen values already
+    default = preset(**{k: v for k, v in vars(chosen).items() if v is not None})
+    return tyro.cli(type(default), default=default, args=rest, prog=f"aed {name}", description=command.__doc__)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `aed` console script.
 
@@ -58,7 +88,11 @@ def main(argv: list[str] | None = None) -> int:
 
     setup_logging()
     try:
-        result = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="aed")
+        argv = sys.argv[1:] if argv is None else list(argv)
+        if argv and argv[0] in _preset_commands():
+            result = _preset_commands()[argv[0]][2](parse_preset_command(argv[0], argv[1:]))
+        else:
+            result = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="aed")
     except (ValueError, KeyError, IndexError, FileNotFoundError, CollectionError) as e:  # CheckpointError is a ValueError
         if os.environ.get("AED_DEBUG"):
             raise

@@ -32,46 +32,41 @@ import tyro
 
 from aed_eval.checks import task_class
 from aed_eval.executors import execute
+from aed_eval.presets import protocol
+from aed_models.layout import RunLayout
+from aed_models.recipe import Profile, check_profile
 from aed_tasks import trajectory
 
 logger = logging.getLogger(__name__)
 
 GROUPS = ("demo", "demo_suboptimal", "agent_success", "agent_failure")
-# Per environment. Paper: 5 demonstrations; every training iteration samples 10 successes +
-# 10 failures (detectors) or 20 successes (SVDDED) from one environment.
-PROFILES: dict[str, dict[str, int | None]] = {
-    "paper": {"num_envs": None, "num_demos": 5, "num_successes": 20, "num_failures": 20},
-    "mini": {"num_envs": 4, "num_demos": 5, "num_successes": 10, "num_failures": 10},
-}
 IDENTITY = ("task", "split", "seed", "obs_mode", "cameras", "shard_size")  # must match to resume
 
 
 @dataclass
 class CollectConfig:
-    """What `aed collect` records, and how.
+    """What `aed collect` records, and how (counts are per environment). Build it with
+    `from_preset`: the profile's counts (`aed_eval.presets`; the novel split records
+    demonstrations only) and the layout's output folder."""
 
-    Counts are per environment; a count left unset takes the profile's value (the novel
-    split records demonstrations only, unless asked otherwise).
-    """
-
-    task: str = "PickPlace"
+    task: str
     """Task name (e.g. PickPlace)."""
-    split: Literal["base", "novel"] = "base"
+    split: Literal["base", "novel"]
     """Catalogue split."""
-    out: Path | None = None
-    """Output folder (default: runs/<task>/data/<split>). Re-running resumes into it."""
-    profile: Literal["paper", "mini"] = "paper"
-    """paper: every environment, 5 demos, 20 successes, 20 failures; mini: 4 environments, 5/10/10."""
+    profile: Profile
+    """The preset the counts came from (paper, mini, demo)."""
+    out: Path
+    """Output folder. Re-running resumes into it."""
+    num_envs: int
+    """Use the first N environments of the catalogue (ignored when `envs` are given)."""
+    num_demos: int
+    """Expert demonstrations per environment."""
+    num_successes: int
+    """Agent successes per environment."""
+    num_failures: int
+    """Agent failures per environment (error kinds rotated evenly)."""
     envs: tuple[int, ...] = ()
     """Explicit environment indices (default: the first `num_envs`)."""
-    num_envs: int | None = None
-    """Use the first N environments of the catalogue (default: the profile's; paper: all)."""
-    num_demos: int | None = None
-    """Expert demonstrations per environment."""
-    num_successes: int | None = None
-    """Agent successes per environment."""
-    num_failures: int | None = None
-    """Agent failures per environment (error kinds rotated evenly)."""
     num_suboptimal_demos: int = 0
     """Sub-optimal demonstrations per environment (failed first attempt, then success)."""
     shard_size: int = 10
@@ -108,12 +103,8 @@ class CollectConfig:
         self.task = task_cls.task_name
         if self.split not in task_cls.catalogue_sizes:
             raise ValueError(f"split={self.split!r}: {self.task} has splits {sorted(task_cls.catalogue_sizes)}")
-        if self.profile not in PROFILES:
-            raise ValueError(f"profile={self.profile!r}: known {sorted(PROFILES)}")
+        check_profile(self.profile)
         size = task_cls.catalogue_sizes[self.split]
-        if self.envs and self.num_envs is not None:
-            raise ValueError(f"envs={self.envs} and num_envs={self.num_envs}: give one of them")
-        self._resolve_counts()
         for name in ("num_demos", "num_successes", "num_failures", "num_suboptimal_demos"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 0")
@@ -122,7 +113,7 @@ class CollectConfig:
             raise ValueError(f"envs={self.envs}: {bad} outside {self.task}-{self.split}'s 0..{size - 1}")
         if len(set(self.envs)) != len(self.envs):
             raise ValueError(f"envs={self.envs}: duplicates")
-        if self.num_envs is not None and not 1 <= self.num_envs <= size:
+        if not self.envs and not 1 <= self.num_envs <= size:
             raise ValueError(f"num_envs={self.num_envs}: must be in 1..{size} ({self.task}-{self.split})")
         if self.num_failures and not task_cls.error_kinds:
             raise ValueError(f"num_failures={self.num_failures}: {self.task} declares no error kinds")
@@ -142,27 +133,25 @@ class CollectConfig:
             raise ValueError(f"executor={self.executor!r}: local or ray")
         self.cameras = tuple(self.cameras)
         self.envs = tuple(int(i) for i in self.envs)
-        if self.out is None:
-            self.out = Path("runs") / self.task / "data" / self.split
         self.out = Path(self.out)
 
-    def _resolve_counts(self) -> None:
-        profile = PROFILES[self.profile]
-        if self.num_envs is None and not self.envs:
-            self.num_envs = profile["num_envs"]
-        agent_default = 0 if self.split == "novel" else None
-        for name in ("num_demos", "num_successes", "num_failures"):
-            if getattr(self, name) is None:
-                default = profile[name] if name == "num_demos" or agent_default is None else agent_default
-                setattr(self, name, int(default))
+    @classmethod
+    def from_preset(cls, task: str = "PickPlace", split: str = "base", profile: str = "mini",
+                    runs: Path = Path("runs"), **overrides: Any) -> CollectConfig:  # fmt: skip
+        """The profile's counts for `split` (novel: demonstrations only), the layout's output
+        folder under `runs`, then `overrides`."""
+        counts = protocol(profile)
+        task = task_class(task).task_name
+        size = task_class(task).catalogue_sizes.get(split, 0)
+        base = split == "base"
+        preset = {"task": task, "split": split, "profile": profile, "out": RunLayout(runs).data(task, split),
+                  "num_envs": counts.base_envs(size) if base else (counts.novel_envs or size),
+                  "num_demos": counts.num_demos, "num_successes": counts.num_successes if base else 0,
+                  "num_failures": counts.num_failures if base else 0}  # fmt: skip
+        return cls(**{**preset, **overrides})
 
     def env_indices(self) -> list[int]:
-        import aed_tasks
-
-        if self.envs:
-            return list(self.envs)
-        size = aed_tasks.get_task(self.task).catalogue_sizes[self.split]
-        return list(range(size if self.num_envs is None else self.num_envs))
+        return list(self.envs) if self.envs else list(range(self.num_envs))
 
     def counts(self) -> dict[str, int]:
         return {

@@ -35,7 +35,6 @@ import tyro
 from aed_eval import metrics
 from aed_eval.calibrate import SOURCES, load_policy_checked, read_calibration, threshold_at
 from aed_eval.checks import check_detectors, check_held_out, task_class
-from aed_eval.layout import RunLayout
 from aed_eval.rollout import paper_ending, stored_rollouts
 from aed_eval.scoring import (
     DETECTOR_NAMES,
@@ -43,6 +42,7 @@ from aed_eval.scoring import (
     EpisodeScorer,
     load_checked_detector,
 )
+from aed_models.layout import RunLayout
 from aed_tasks import trajectory
 
 logger = logging.getLogger(__name__)
@@ -83,7 +83,7 @@ class EvaluateConfig:
     seed: int = 0
     """Seed of the `random` reference and of the bootstrap."""
     runs: Path = Path("runs")
-    """Root of the runs folder (see aed_eval.layout)."""
+    """Root of the runs folder (see aed_models.layout)."""
     progress: bool = True
     """Show progress bars."""
 
@@ -91,8 +91,7 @@ class EvaluateConfig:
         from aed_models.policies import POLICIES
 
         self.task = task_class(self.task).task_name
-        if self.policy not in POLICIES:
-            raise ValueError(f"policy={self.policy!r}: known {sorted(POLICIES)}")
+        POLICIES.check(self.policy)
         check_detectors(self.detectors)
         if self.num_demos < 1 or self.window < 0 or self.bootstrap < 1:
             raise ValueError(f"num_demos={self.num_demos}, window={self.window}, bootstrap={self.bootstrap}: "

@@ -38,17 +38,16 @@ def model_rows(profile: Literal["mini", "paper"] = "paper") -> list[ModelRow]:
         DETECTORS,
         PAPER_NOTES,
         PAPER_PARAMETERS,
-        detector_config,
-        make_detector,
+            make_detector,
     )
-    from aed_models.policies import POLICIES, make_policy, policy_config
+    from aed_models.policies import POLICIES, make_policy
 
     rows, policies = [], {}
     for name in POLICIES:
-        policy = policies[name] = make_policy(name, policy_config(name, profile))
+        policy = policies[name] = make_policy(name, POLICIES.preset(name, profile))
         rows.append(ModelRow("policy", name, policy.config.visual.arch, count(policy), None))
     for name in DETECTORS:
-        config = detector_config(name, profile)
+        config = DETECTORS.preset(name, profile)
         paper, note = PAPER_PARAMETERS.get(name), PAPER_NOTES.get(name, "")
         if make_detector(name, config).requires_policy:
             for policy_name, policy in policies.items():

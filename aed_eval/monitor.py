@@ -144,8 +144,8 @@ def monitor(
     `alpha` (`aed calibrate`), else 0.9."""
     import aed_tasks
     from aed_eval.calibrate import load_policy_checked, read_calibration, threshold_at
-    from aed_eval.layout import RunLayout
     from aed_eval.scoring import Demonstrations, load_checked_detector
+    from aed_models.layout import RunLayout
 
     task = aed_tasks.get_task(task).task_name
     layout = RunLayout(runs)

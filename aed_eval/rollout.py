@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -35,49 +35,51 @@ import tyro
 from aed_eval.checks import task_class
 from aed_eval.collect import episode_seed, plain_value, prepare_folder
 from aed_eval.executors import execute
-from aed_eval.layout import RunLayout
 from aed_eval.metrics import rate_interval
+from aed_eval.presets import protocol
 from aed_eval.scoring import Demonstrations
+from aed_models.layout import RunLayout
+from aed_models.recipe import Profile, check_profile
 from aed_tasks import trajectory
 
 logger = logging.getLogger(__name__)
 
 ROLE = "policy_rollout"
-PROFILES: dict[str, dict[str, int | None]] = {
-    "paper": {"num_envs": None, "num_episodes": 20, "num_demos": 5},
-    "mini": {"num_envs": 4, "num_episodes": 5, "num_demos": 5},
-}
 IDENTITY = ("task", "split", "policy", "policy_sha256", "seed", "num_demos", "shard_size", "horizon", "ending")
 ENDINGS = ("horizon", "success")
 
 
 @dataclass
 class RolloutConfig:
-    """What `aed rollout` runs, and how (counts are per environment)."""
+    """What `aed rollout` runs, and how (counts are per environment). Build it with
+    `from_preset`: the profile's counts (`aed_eval.presets`), the task's evaluation horizon and
+    the layout's paths."""
 
-    task: str = "PressButton"
+    task: str
     """Task name (e.g. PressButton)."""
-    policy: str = "naive_dc"
+    policy: str
     """Policy name (naive_dc, dct, scan)."""
-    checkpoint: Path | None = None
-    """Policy checkpoint (default: runs/<task>/policies/<policy>/policy.pt)."""
-    split: Literal["base", "novel"] = "novel"
+    split: Literal["base", "novel"]
     """Catalogue split to act in."""
-    demos: Path | None = None
-    """Collection holding the split's demonstrations (default: runs/<task>/data/<split>)."""
-    out: Path | None = None
-    """Output folder (default: runs/<task>/rollouts/<policy>/<split>). Re-running resumes into it."""
-    profile: Literal["paper", "mini"] = "mini"
-    """paper: every environment, 20 episodes each; mini: 4 environments, 5 episodes each."""
-    envs: tuple[int, ...] = ()
-    """Explicit environment indices (default: the first `num_envs` that have demonstrations and,
-    in the base split, that the policy did not train on)."""
-    num_envs: int | None = None
-    """Use the first N environments (default: the profile's; paper: all)."""
-    num_episodes: int | None = None
+    profile: Profile
+    """The preset the counts came from (paper, mini, demo)."""
+    checkpoint: Path
+    """Policy checkpoint."""
+    demos: Path
+    """Collection holding the split's demonstrations."""
+    out: Path
+    """Output folder. Re-running resumes into it."""
+    num_envs: int
+    """Use the first N environments that have demonstrations and, in the base split, that the
+    policy did not train on (ignored when `envs` are given)."""
+    num_episodes: int
     """Rollouts per environment."""
-    num_demos: int | None = None
+    num_demos: int
     """Demonstrations the policy is conditioned on (the first N of the environment's)."""
+    horizon: int
+    """Steps of every rollout (the task's evaluation horizon by default)."""
+    envs: tuple[int, ...] = ()
+    """Explicit environment indices."""
     shard_size: int = 10
     """Episodes per shard file (the unit of atomic writes and of resuming)."""
     workers: int = 1
@@ -86,54 +88,56 @@ class RolloutConfig:
     """local: a process pool on this machine; ray: Ray actors (pip install aed-toolkit[ray])."""
     ray_address: str | None = None
     """Ray cluster address."""
-    horizon: int | None = None
-    """Steps of every rollout (default: the task's evaluation horizon)."""
     ending: Literal["horizon", "success"] = "horizon"
     """horizon: every rollout runs `horizon` steps, success latched (the length tells nothing of
     the outcome); success: the paper's ending, a rollout stops at its first success (or an
     irrecoverable failure), so successful rollouts are shorter."""
     seed: int = 0
     """Root seed; every episode's seed derives from it (the same for every policy)."""
-    runs: Path = Path("runs")
-    """Root of the runs folder (see aed_eval.layout)."""
     progress: bool = True
     """Show a progress bar."""
-    policy_sha256: str = field(default="", init=False)
+    policy_sha256: tyro.conf.Suppress[str] = ""
+    """The checkpoint's sha256, set by `run_rollouts` once it has checked the file."""
 
     def __post_init__(self) -> None:
-        from aed_models.checkpoint import file_sha256
         from aed_models.policies import POLICIES
 
         task_cls = task_class(self.task)
         self.task = task_cls.task_name
-        if self.policy not in POLICIES:
-            raise ValueError(f"policy={self.policy!r}: known {sorted(POLICIES)}")
-        if self.profile not in PROFILES:
-            raise ValueError(f"profile={self.profile!r}: known {sorted(PROFILES)}")
-        if self.envs and self.num_envs is not None:
-            raise ValueError(f"envs={self.envs} and num_envs={self.num_envs}: give one of them")
+        POLICIES.check(self.policy)
+        check_profile(self.profile)
         if self.ending not in ENDINGS:
             raise ValueError(f"ending={self.ending!r}: known {ENDINGS}")
-        for name, value in PROFILES[self.profile].items():
-            if getattr(self, name) is None:
-                setattr(self, name, value)
-        if self.horizon is None:
-            self.horizon = task_cls.eval_horizon
         for name in ("num_envs", "num_episodes", "num_demos", "shard_size", "workers", "horizon"):
-            if getattr(self, name) is not None and getattr(self, name) < 1:
+            if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
         size = task_cls.catalogue_sizes[self.split]
         bad = [i for i in self.envs if not 0 <= i < size]
         if bad:
             raise ValueError(f"envs={bad}: {self.task}-{self.split} has environments 0..{size - 1}")
-        layout = RunLayout(self.runs)
-        self.checkpoint = Path(self.checkpoint or layout.policy(self.task, self.policy))
+        self.checkpoint, self.demos, self.out = Path(self.checkpoint), Path(self.demos), Path(self.out)
+
+    @classmethod
+    def from_preset(cls, task: str = "PressButton", policy: str = "naive_dc", split: str = "novel",
+                    profile: str = "mini", runs: Path = Path("runs"), **overrides: Any) -> RolloutConfig:  # fmt: skip
+        """The profile's counts, the task's evaluation horizon, the layout's paths under `runs`,
+        then `overrides`."""
+        counts, task_cls, layout = protocol(profile), task_class(task), RunLayout(runs)
+        task = task_cls.task_name
+        preset = {"task": task, "policy": policy, "split": split, "profile": profile,
+                  "checkpoint": layout.policy(task, policy), "demos": layout.data(task, split),
+                  "out": layout.rollouts(task, policy, split), "num_envs": counts.novel_envs or task_cls.catalogue_sizes[split],
+                  "num_episodes": counts.rollouts, "num_demos": counts.num_demos, "horizon": task_cls.eval_horizon}  # fmt: skip
+        return cls(**{**preset, **overrides})
+
+    def with_checkpoint_hash(self) -> RolloutConfig:
+        """This config with the checkpoint's sha256 (a clear error when the file is missing)."""
+        from aed_models.checkpoint import file_sha256
+
         if not self.checkpoint.is_file():
             raise FileNotFoundError(f"{self.checkpoint}: no policy checkpoint; train it with "
                                     f"`aed train-policy --task {self.task} --policy {self.policy}`")  # fmt: skip
-        self.policy_sha256 = file_sha256(self.checkpoint)
-        self.demos = Path(self.demos or layout.data(self.task, self.split))
-        self.out = Path(self.out or layout.rollouts(self.task, self.policy, self.split))
+        return replace(self, policy_sha256=file_sha256(self.checkpoint))
 
     def identity(self) -> dict[str, Any]:
         return {k: plain_value(getattr(self, k)) for k in IDENTITY}
@@ -198,7 +202,7 @@ class RolloutRunner:
         import aed_tasks
         from aed_models.policies import load_policy
 
-        self.cfg = cfg
+        self.cfg = cfg if cfg.policy_sha256 else cfg.with_checkpoint_hash()
         self.policy = load_policy(cfg.checkpoint).eval() if policy is None else policy
         env = gym.make(aed_tasks.env_id(cfg.task, cfg.split), obs_mode="rgbd", max_episode_steps=cfg.horizon,
                        terminate_on_success=False)  # fmt: skip
@@ -293,6 +297,8 @@ class RolloutSummary:
 def run_rollouts(cfg: RolloutConfig) -> RolloutSummary:
     """Run every planned rollout shard that is not committed yet (resume = run again)."""
     from tqdm.auto import tqdm
+
+    cfg = cfg.with_checkpoint_hash()
 
     available = Demonstrations(Path(cfg.demos), cfg.split, cfg.num_demos).envs()
     if not available:

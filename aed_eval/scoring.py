@@ -1,6 +1,6 @@
 """Offline scoring of stored episodes by trained detectors (shared by evaluate and calibrate).
 
-A detector (found through `aed_eval.layout.RunLayout`) is checked before it scores anything: trained for this task, and, when it reads a policy's
+A detector (found through `aed_models.layout.RunLayout`) is checked before it scores anything: trained for this task, and, when it reads a policy's
 features, trained on exactly this policy checkpoint (same sha256). Policy features of an
 episode are computed once and shared by every policy-dependent detector.
 """

@@ -7,12 +7,35 @@ Thin command-line faces of the training loops in `aed_models.train`; the loops t
 from __future__ import annotations
 
 import time
-from typing import Annotated
+from typing import Annotated, Any
 
 import tyro
 
+from aed_eval.checks import task_class
+from aed_eval.presets import protocol
 from aed_models.train.detector import TrainDetectorConfig
 from aed_models.train.policy import TrainPolicyConfig
+
+
+def training_envs(task: str, profile: str) -> int:
+    """How many base environments the protocol trains on (the rest of a collection calibrates)."""
+    return protocol(profile).training_envs(task_class(task).catalogue_sizes["base"])
+
+
+def policy_preset(task: str = "PressButton", policy: str = "naive_dc", profile: str = "mini", **kw: Any) -> TrainPolicyConfig:
+    """`aed train-policy`'s defaults: the policy's recipe, on the protocol's training environments."""
+    return TrainPolicyConfig.from_preset(task, policy, profile, num_envs=training_envs(task, profile), **kw)
+
+
+def detector_preset(task: str = "PressButton", detector: str = "probe", profile: str = "mini", policy: str | None = None,
+                    **kw: Any) -> TrainDetectorConfig:  # fmt: skip
+    """`aed train-detector`'s defaults: the detector's recipe, on the protocol's training
+    environments (PrObe and rnd_oe read naive_dc's features unless `--policy` names another)."""
+    from aed_models.detectors import requires_policy
+
+    policy = policy or ("naive_dc" if requires_policy(detector) else None)
+    return TrainDetectorConfig.from_preset(task, detector, profile, policy=policy,
+                                           num_envs=training_envs(task, profile), **kw)  # fmt: skip
 
 
 def train_policy(cfg: Annotated[TrainPolicyConfig, tyro.conf.arg(name="")]) -> int:

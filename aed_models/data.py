@@ -39,6 +39,7 @@ import torch
 from torch.utils.data import Dataset, Sampler
 
 from aed_models.augment import RolloutAugment
+from aed_models.recipe import COMPOSITIONS, Composition
 from aed_tasks import trajectory
 
 logger = logging.getLogger(__name__)
@@ -53,27 +54,6 @@ def proprio_from_obs(tcp_pose: Any, qpos: Any) -> np.ndarray:
     if tcp_pose.shape[-1] != 7 or qpos.shape[-1] < 2:
         raise ValueError(f"proprio: tcp_pose {tcp_pose.shape} and qpos {qpos.shape}: expected (..., 7) and (..., >= 2)")
     return np.concatenate([tcp_pose[..., :3], qpos[..., -2:]], axis=-1)
-
-
-@dataclass(frozen=True)
-class Composition:
-    """How many episodes of each kind one training iteration draws from one environment."""
-
-    num_demos: int
-    num_successes: int
-    num_failures: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("num_demos", "num_successes", "num_failures"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}={getattr(self, name)}: must be >= 0")
-
-
-COMPOSITIONS: dict[str, Composition] = {
-    "policy": Composition(5, 10, 0),
-    "detector": Composition(5, 10, 10),
-    "svdd": Composition(5, 20, 0),
-}
 
 
 def to_frames(rgb: np.ndarray, depth: np.ndarray, out: torch.Tensor | None = None) -> torch.Tensor:

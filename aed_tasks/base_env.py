@@ -1,9 +1,14 @@
 """The shared base of every AED task: catalogues, room, cameras, demonstrator, info.
 
 A task subclasses `AEDBaseEnv`, declares its catalogue sizes, stages and error kinds,
-and fills four hooks: `sample_objects` (what an environment holds), `_load_task`
-(build it), `_initialize_task` (randomise poses), `evaluate` (success / fail / stage),
-plus `expert_script` (the motion-planned expert with its error injections).
+and fills these hooks (ManiSkill's own `BaseEnv` hooks are implemented here and call them):
+
+- `sample_objects`: what an environment of the catalogue holds (no ManiSkill counterpart);
+- `_load_task`: build those objects, called from ManiSkill's `_load_scene` after the room;
+- `_initialize_task`: randomise their poses, called from ManiSkill's `_initialize_episode`
+  after the robot is reset;
+- `evaluate`: ManiSkill's own hook (success / fail / stage);
+- `expert_script`: the motion-planned expert with its error injections.
 """
 
 from __future__ import annotations

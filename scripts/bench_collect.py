@@ -73,7 +73,7 @@ def raw_replay(env, h5_path: Path) -> float:
 
 
 def bench(cfg: Config) -> dict:
-    collect_cfg = CollectConfig(
+    collect_cfg = CollectConfig.from_preset(
         task=cfg.task, split=cfg.split, envs=(0,), num_demos=0, num_successes=0, num_failures=0,
         compression=cfg.compression, compression_level=cfg.compression_level, progress=False,
     )  # fmt: skip

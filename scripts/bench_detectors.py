@@ -26,7 +26,7 @@ import torch
 import tyro
 
 from aed_eval.logs import setup_logging
-from aed_models.detectors import DETECTORS, PAPER_PARAMETERS, detector_config, make_detector
+from aed_models.detectors import DETECTORS, PAPER_PARAMETERS, make_detector
 from aed_models.detectors.base import to_device
 
 logger = logging.getLogger("bench_detectors")
@@ -123,9 +123,9 @@ def main(cfg: Config) -> None:
     for name in names:
         torch.manual_seed(0)
         overrides = {}
-        if DETECTORS[name].model_type().requires_policy:
+        if DETECTORS.model_type(name).requires_policy:
             overrides = {"history_dim": cfg.history_dim, **({"task_dim": cfg.task_dim} if name == "probe" else {})}
-        detector = make_detector(name, detector_config(name, cfg.profile), **overrides).to(cfg.device)
+        detector = make_detector(name, DETECTORS.preset(name, cfg.profile), **overrides).to(cfg.device)
         t10, t200 = online_latency(detector, batch["demos"], cfg)
         rate = train_throughput(detector, cfg)
         rows.append(Row(name, detector.num_parameters(), PAPER_PARAMETERS.get(name), round(t10, 3), round(t200, 3), round(rate, 1)))

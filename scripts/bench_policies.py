@@ -25,7 +25,7 @@ from pathlib import Path
 
 import torch
 
-from aed_models.policies import POLICIES, make_policy, policy_config
+from aed_models.policies import POLICIES, make_policy
 
 logger = logging.getLogger("bench_policies")
 H, W = 120, 160
@@ -112,7 +112,7 @@ def main(cfg: Config) -> list[dict]:
     for head in cfg.heads:
         for name in cfg.policies:
             torch.manual_seed(0)
-            config = policy_config(name, PROFILE[head])
+            config = POLICIES.preset(name, PROFILE[head])
             policy = make_policy(name, config).to(device)
             policy.set_action_stats(torch.rand(100, 4, device=device) * 2 - 1)
             latency = online_latency(policy, cfg, device)

@@ -57,11 +57,11 @@ def run_once(cfg: Config, checkpoint: Path, threads: str | None) -> float:
 
 
 def main(cfg: Config) -> dict:
-    from aed_models.policies import make_policy, policy_config, save_policy
+    from aed_models.policies import POLICIES, make_policy, save_policy
 
     with tempfile.TemporaryDirectory() as tmp:
         checkpoint = Path(tmp) / "policy.pt"
-        save_policy(checkpoint, make_policy("dct", policy_config("dct", "mini")))
+        save_policy(checkpoint, make_policy("dct", POLICIES.preset("dct", "mini")))
         times: dict[str, list[float]] = {"share": [], "defaults": []}
         for _ in range(cfg.repeats):
             times["share"].append(run_once(cfg, checkpoint, None))

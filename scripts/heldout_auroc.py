@@ -27,9 +27,9 @@ import tyro
 from aed_eval import metrics
 from aed_eval.calibrate import load_policy_checked
 from aed_eval.checks import check_held_out
-from aed_eval.layout import RunLayout
 from aed_eval.logs import setup_logging
 from aed_eval.scoring import DETECTOR_NAMES, Demonstrations, EpisodeScorer, load_checked_detector
+from aed_models.layout import RunLayout
 from aed_tasks import trajectory
 
 logger = logging.getLogger("heldout_auroc")

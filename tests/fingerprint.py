@@ -1,8 +1,9 @@
 """What the code produces, summarised: the resolved recipes, trained weights and episodes.
 
-`tests/fixtures/fingerprint.json` was written by this module before the presets redesign (#21);
-`tests/test_fingerprint.py` checks that the code still produces it. Regenerate only for an
-intended change of behaviour: `python -m tests.fingerprint --write`.
+`tests/fixtures/fingerprint.json` was written by this module before the presets redesign (#21),
+against the API of then; the module now reads the same facts through today's API, and
+`tests/test_fingerprint.py` checks that they are what they were. Never regenerate it to make a
+test pass: an intended change is listed, with its reason, in `test_fingerprint.INTENDED`.
 """
 
 from __future__ import annotations
@@ -28,6 +29,9 @@ TASKS = (
     "FactoryPacking",
 )
 PROFILES = ("mini", "paper")
+# The demo's profiles then -> the presets now: `aed demo --profile mini` ran the demo's counts
+# with mini models, which is now the `demo` preset.
+DEMO_PRESETS = {"mini": "demo", "paper": "paper"}
 TRAIN_FIELDS = ("epochs", "num_envs", "max_frames", "rollout_frames", "shift", "lr", "weight_decay",
                 "data", "out", "augment")  # fmt: skip
 
@@ -49,7 +53,7 @@ def train_fields(cfg: Any) -> dict[str, Any]:
     """A training config's resolved fields, with the episodes one iteration draws."""
     return {
         **{k: plain(getattr(cfg, k)) for k in TRAIN_FIELDS if hasattr(cfg, k)},
-        "num_envs": cfg.num_envs or None,  # None and 0: every environment
+        "num_envs": cfg.num_envs or None,  # None (then) and 0 (now): every environment
         "draws": list(iteration_draws(cfg)),
     }
 
@@ -63,7 +67,7 @@ def iteration_draws(cfg: Any) -> tuple[int, int, int]:
         return (c[0], c[1], 0) if c else astuple(COMPOSITIONS["policy"])
     from aed_models.detectors import DETECTORS
 
-    only_successes = DETECTORS[cfg.detector].model_type().trains_on == "successes"
+    only_successes = DETECTORS.model_type(cfg.detector).trains_on == "successes"
     if cfg.composition is None:
         return astuple(COMPOSITIONS["svdd" if only_successes else "detector"])
     demos, successes, failures = cfg.composition
@@ -76,36 +80,37 @@ def astuple(composition: Any) -> tuple[int, int, int]:
 
 # --- recipes: what every command resolves to ----------------------------------------------------
 def policy_recipes() -> dict[str, Any]:
-    from aed_models.policies import POLICIES, policy_config
+    from aed_models.policies import POLICIES
     from aed_models.train.policy import TrainPolicyConfig
 
     out = {}
     for profile in PROFILES:
         for name in POLICIES:
-            out[f"model/{name}/{profile}"] = plain(policy_config(name, profile).to_dict())
+            out[f"model/{name}/{profile}"] = plain(POLICIES.preset(name, profile).to_dict())
             for task in TASKS:
                 out[f"train/{name}/{profile}/{task}"] = train_fields(
-                    TrainPolicyConfig(task=task, policy=name, profile=profile)
+                    TrainPolicyConfig.from_preset(task, name, profile)
                 )
     return out
 
 
 def detector_recipes() -> dict[str, Any]:
-    from aed_models.detectors import DETECTORS, detector_config
+    from aed_models.detectors import DETECTORS, requires_policy
     from aed_models.train.detector import TrainDetectorConfig
 
     out = {}
     for profile in PROFILES:
         for name in DETECTORS:
-            out[f"model/{name}/{profile}"] = plain(detector_config(name, profile))
-            policy = "dct" if DETECTORS[name].model_type().requires_policy else None
+            out[f"model/{name}/{profile}"] = plain(DETECTORS.preset(name, profile))
+            policy = "dct" if requires_policy(name) else None
             for task in TASKS:
-                cfg = TrainDetectorConfig(task=task, detector=name, policy=policy, profile=profile)
+                cfg = TrainDetectorConfig.from_preset(task, name, profile, policy=policy)
                 out[f"train/{name}/{profile}/{task}"] = train_fields(cfg)
     return out
 
 
 def protocol_counts(checkpoint: Path) -> dict[str, Any]:
+    import aed_tasks
     from aed_eval.collect import CollectConfig
     from aed_eval.rollout import RolloutConfig
 
@@ -123,17 +128,23 @@ def protocol_counts(checkpoint: Path) -> dict[str, Any]:
     for profile in PROFILES:
         for task in TASKS:
             for split in ("base", "novel"):
-                collect = CollectConfig(task=task, split=split, profile=profile)
-                out[f"collect/{profile}/{task}/{split}"] = {
-                    k: plain(getattr(collect, k)) for k in keys if hasattr(collect, k)
-                }
-                rollout = RolloutConfig(
-                    task=task, split=split, profile=profile, checkpoint=checkpoint
+                size = aed_tasks.get_task(task).catalogue_sizes[split]
+                collect = CollectConfig.from_preset(task, split, profile)
+                out[f"collect/{profile}/{task}/{split}"] = counts(collect, keys, size)
+                rollout = RolloutConfig.from_preset(
+                    task, split=split, profile=profile, checkpoint=checkpoint
                 )
-                out[f"rollout/{profile}/{task}/{split}"] = {
-                    k: plain(getattr(rollout, k)) for k in keys if hasattr(rollout, k)
-                }
+                out[f"rollout/{profile}/{task}/{split}"] = counts(rollout, keys, size)
     return out
+
+
+def counts(cfg: Any, keys: tuple[str, ...], size: int) -> dict[str, Any]:
+    """A config's counts; `num_envs` None for every environment of the split (then: None; now:
+    the catalogue's size), or when explicit `envs` make it irrelevant."""
+    found = {k: plain(getattr(cfg, k)) for k in keys if hasattr(cfg, k)}
+    if "num_envs" in found and (found["num_envs"] == size or getattr(cfg, "envs", ())):
+        found["num_envs"] = None
+    return found
 
 
 def demo_stages(profile: str) -> dict[str, Any]:
@@ -151,7 +162,7 @@ def demo_stages(profile: str) -> dict[str, Any]:
     try:
         for module, attr, key in patches:
             setattr(module, attr, lambda cfg, *a, _key=key: seen[_key].append(cfg))
-        stages = Stages(DemoConfig(task="PressButton", profile=profile))
+        stages = Stages(DemoConfig.from_preset(task="PressButton", profile=DEMO_PRESETS[profile]))
         stages.collect_base()
         stages.train_policies()
         stages.train_detectors()
@@ -159,9 +170,9 @@ def demo_stages(profile: str) -> dict[str, Any]:
     finally:
         for module, attr, fn in saved:
             setattr(module, attr, fn)
-    counts = ("envs", "num_envs", "num_demos", "num_successes", "num_failures", "out", "shard_size")
+    keys = ("envs", "num_envs", "num_demos", "num_successes", "num_failures", "out", "shard_size")
     return {
-        "collect": [{k: plain(getattr(c, k)) for k in counts} for c in seen["collect"]],
+        "collect": [counts(c, keys, size=-1) for c in seen["collect"]],
         "policy": [{"policy": c.policy, **train_fields(c)} for c in seen["policy"]],
         "detector": [
             {"detector": c.detector, "policy": c.policy, **train_fields(c)}
@@ -220,43 +231,41 @@ def trained_policies(root: Path) -> dict[str, Any]:
     data = policy_collection(root / "policy_data")
     out = {}
     for name in ("naive_dc", "dct", "scan"):
-        cfg = TrainPolicyConfig(
-            task="PressButton", policy=name, data=data, out=root / name, epochs=2, progress=False
+        cfg = TrainPolicyConfig.from_preset(
+            "PressButton", name, data=data, out=root / name, epochs=2, progress=False
         )
         out[name] = tensor_summary(load_policy(train_policy(cfg, tiny_config(name))).state_dict())
     return out
 
 
 def trained_detectors(root: Path, policy_path: Path) -> dict[str, Any]:
-    from aed_models.detectors import DETECTORS, load_detector, make_detector
+    from aed_models.detectors import DETECTORS, load_detector, make_detector, requires_policy
     from aed_models.train.detector import TrainDetectorConfig, train_detector
     from tests.models.test_detectors import TINY
 
     data = detector_collection(root / "detector_data")
     out = {}
     for name in DETECTORS:
-        needs_policy = DETECTORS[name].model_type().requires_policy
+        needs_policy = requires_policy(name)
         sizes = {k: v for k, v in TINY[name].items() if k not in ("history_dim", "task_dim")}
         if name == "rnd_oe":
             sizes["max_steps"] = 16
         torch.manual_seed(0)
         config = make_detector(name, **TINY[name]).config if not needs_policy else None
         if needs_policy:
-            from aed_models.detectors import detector_config
-
-            config = dataclasses.replace(detector_config(name, "mini"), **sizes)
-        cfg = TrainDetectorConfig(task="PickPlace", detector=name, policy=str(policy_path) if needs_policy else None,
-                                  data=data, out=root / name, epochs=1, progress=False)  # fmt: skip
+            config = DETECTORS.preset(name, "mini", **sizes)
+        cfg = TrainDetectorConfig.from_preset("PickPlace", name, policy=str(policy_path) if needs_policy else None,
+                                              data=data, out=root / name, epochs=1, progress=False)  # fmt: skip
         out[name] = tensor_summary(load_detector(train_detector(cfg, config)).state_dict())
     return out
 
 
 def tiny_policy_file(root: Path) -> Path:
     from aed_models.nn import VisualHeadConfig
-    from aed_models.policies import make_policy, policy_config, save_policy
+    from aed_models.policies import POLICIES, make_policy, save_policy
 
     torch.manual_seed(0)
-    config = policy_config(
+    config = POLICIES.preset(
         "naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)
     )
     path = root / "tiny_policy" / "policy.pt"
@@ -295,16 +304,16 @@ def episodes(root: Path, policy_path: Path) -> dict[str, Any]:
     from aed_eval.rollout import RolloutConfig, run_rollouts
 
     state = root / "state"
-    run_collection(CollectConfig(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
+    run_collection(CollectConfig.from_preset(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
                                  num_failures=1, shard_size=1, obs_mode="state", out=state, progress=False))  # fmt: skip
     demos = root / "novel"
     run_collection(
-        CollectConfig(
+        CollectConfig.from_preset(
             task="PressButton", split="novel", envs=(0,), num_demos=1, out=demos, progress=False
         )
     )
     rollouts = root / "rollouts"
-    run_rollouts(RolloutConfig(task="PressButton", policy="naive_dc", checkpoint=policy_path, split="novel",
+    run_rollouts(RolloutConfig.from_preset(task="PressButton", policy="naive_dc", checkpoint=policy_path, split="novel",
                                demos=demos, out=rollouts, envs=(0,), num_episodes=2, num_demos=1, horizon=6,
                                progress=False))  # fmt: skip
     return {

@@ -54,7 +54,7 @@ def digest(root: Path) -> dict[str, tuple]:
 def rgbd_collection(tmp_path_factory) -> Path:
     """Pick & Place base, environment 0: one demonstration, one success, two failures, RGB-D."""
     out = tmp_path_factory.mktemp("rgbd")
-    cfg = CollectConfig(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1, num_failures=2,
+    cfg = CollectConfig.from_preset(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1, num_failures=2,
                         shard_size=2, out=out, progress=False)  # fmt: skip
     summary = run_collection(cfg)
     assert summary.episodes == 4 and summary.skipped == 0
@@ -64,7 +64,7 @@ def rgbd_collection(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def state_collection(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("uninterrupted")
-    run_collection(CollectConfig(**STATE_RUN, out=out))
+    run_collection(CollectConfig.from_preset(**STATE_RUN, out=out))
     return out
 
 
@@ -159,7 +159,7 @@ def test_killed_collection_resumes_to_the_same_episodes(state_collection, tmp_pa
     (out / "agent_success_env001_0001.h5.tmp").write_bytes(b"half a shard")  # as a kill mid-write leaves
     (out / "agent_failure_env001_0001.h5").write_bytes(b"renamed, json never written")  # a kill before the commit
 
-    summary = run_collection(CollectConfig(**STATE_RUN, out=out))
+    summary = run_collection(CollectConfig.from_preset(**STATE_RUN, out=out))
     assert summary.skipped == committed and summary.episodes == 8 - committed
     assert not list(out.glob("*.tmp"))
     assert digest(out) == digest(state_collection)
@@ -181,7 +181,7 @@ def test_killed_rgbd_collection_resumes_to_the_same_frames(rgbd_collection, tmp_
     finally:
         os.killpg(process.pid, signal.SIGKILL)
         process.wait()
-    run_collection(CollectConfig(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
+    run_collection(CollectConfig.from_preset(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
                                  num_failures=2, shard_size=2, out=out, progress=False))  # fmt: skip
     resumed, original = digest(out), digest(rgbd_collection)
     assert resumed == original
@@ -190,14 +190,14 @@ def test_killed_rgbd_collection_resumes_to_the_same_frames(rgbd_collection, tmp_
 
 @pytest.mark.slow
 def test_worker_count_does_not_change_the_frames(rgbd_collection, tmp_path):
-    run_collection(CollectConfig(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
+    run_collection(CollectConfig.from_preset(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
                                  num_failures=2, shard_size=2, out=tmp_path, workers=2, progress=False))  # fmt: skip
     assert digest(tmp_path) == digest(rgbd_collection)
 
 
 @pytest.mark.slow
 def test_worker_count_does_not_change_the_episodes(state_collection, tmp_path):
-    run_collection(CollectConfig(**{**STATE_RUN, "workers": 2}, out=tmp_path))
+    run_collection(CollectConfig.from_preset(**{**STATE_RUN, "workers": 2}, out=tmp_path))
     assert digest(tmp_path) == digest(state_collection)
 
 
@@ -205,7 +205,7 @@ def test_worker_count_does_not_change_the_episodes(state_collection, tmp_path):
 def test_ray_executor_gives_the_same_episodes(state_collection, tmp_path):
     ray = pytest.importorskip("ray", reason="the optional `ray` extra is not installed")
     try:
-        run_collection(CollectConfig(**{**STATE_RUN, "executor": "ray", "workers": 2}, out=tmp_path))
+        run_collection(CollectConfig.from_preset(**{**STATE_RUN, "executor": "ray", "workers": 2}, out=tmp_path))
     finally:
         ray.shutdown()
     assert digest(tmp_path) == digest(state_collection)
@@ -213,7 +213,7 @@ def test_ray_executor_gives_the_same_episodes(state_collection, tmp_path):
 
 def test_rerun_of_a_finished_collection_records_nothing(state_collection):
     before = digest(state_collection)
-    summary = run_collection(CollectConfig(**STATE_RUN, out=state_collection))
+    summary = run_collection(CollectConfig.from_preset(**STATE_RUN, out=state_collection))
     assert summary.episodes == 0 and summary.skipped == 8
     assert digest(state_collection) == before
 
@@ -241,7 +241,7 @@ def test_corrupt_or_foreign_files_are_named_and_nothing_is_lost(state_collection
     else:
         named = trajectory.MANIFEST
     files = {p.name: p.read_bytes() for p in root.iterdir()}
-    cfg = CollectConfig(**{**STATE_RUN, "shard_size": 2} if damage == "other_settings" else STATE_RUN, out=root)
+    cfg = CollectConfig.from_preset(**{**STATE_RUN, "shard_size": 2} if damage == "other_settings" else STATE_RUN, out=root)
     with pytest.raises(trajectory.CollectionError, match=named.replace(".", r"\.")):
         run_collection(cfg)
     assert {p.name: p.read_bytes() for p in root.iterdir()} == files, "a failed run changed the folder"
@@ -265,8 +265,8 @@ def test_retries_are_counted_shown_and_fail_loudly(state_collection, tmp_path):
 
 def test_config_errors_name_the_field():
     with pytest.raises(ValueError, match="task='Juggle'"):
-        CollectConfig(task="Juggle")
+        CollectConfig.from_preset(task="Juggle")
     with pytest.raises(ValueError, match=r"envs=\(99,\)"):
-        CollectConfig(task="PickPlace", envs=(99,))
+        CollectConfig.from_preset(task="PickPlace", envs=(99,))
     with pytest.raises(ValueError, match="workers=0"):
-        CollectConfig(task="PickPlace", workers=0)
+        CollectConfig.from_preset(task="PickPlace", workers=0)

@@ -11,7 +11,7 @@ from aed_eval.monitor import SAFE_TCP, AEDMonitor
 from aed_models.data import proprio_from_obs, to_frames
 from aed_models.detectors import make_detector
 from aed_models.nn import VisualHeadConfig
-from aed_models.policies import make_policy, policy_config
+from aed_models.policies import POLICIES, make_policy
 
 ENV_ID = "AED-PressButton-novel"
 
@@ -26,7 +26,7 @@ def env():
 @pytest.fixture(scope="module")
 def policy():
     torch.manual_seed(0)
-    config = policy_config("scan", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4))
+    config = POLICIES.preset("scan", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4))
     return make_policy("scan", config).eval()
 
 

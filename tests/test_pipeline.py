@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from aed_eval.demo import DemoConfig, run_demo
-from aed_eval.layout import RunLayout
 from aed_eval.scoring import load_checked_detector
+from aed_models.layout import RunLayout
 from tests.helpers import load_script
 
 AED = str(Path(sys.executable).with_name("aed"))
@@ -29,7 +29,7 @@ TASK = "PressButton"
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory) -> tuple[DemoConfig, Path]:
     runs = tmp_path_factory.mktemp("runs")
-    cfg = DemoConfig(task=TASK, policies=("naive_dc",), detectors=("probe", "lstm_ed"), runs=runs, train_envs=1,
+    cfg = DemoConfig.from_preset(task=TASK, policies=("naive_dc",), detectors=("probe", "lstm_ed"), runs=runs, train_envs=1,
                      calibration_envs=1, novel_envs=1, num_demos=1, num_successes=2, num_failures=2, labelled=1,
                      rollouts=2, calibration_rollouts=2, policy_epochs=1, detector_epochs=1, horizon=30, alphas=(0.5,),
                      workers=1)  # fmt: skip
@@ -87,9 +87,9 @@ def test_a_rerun_reuses_finished_stages(pipeline):
 
 @pytest.mark.parametrize(("args", "named"), [
     (["evaluate", "--task", "Juggle"], "task='Juggle'"),
-    (["evaluate", "--task", TASK, "--policy", "juggle"], "policy='juggle'"),
+    (["evaluate", "--task", TASK, "--policy", "juggle"], "unknown policy 'juggle'"),
     (["evaluate", "--task", TASK, "--detectors", "juggle"], "detectors=['juggle']"),
-    (["rollout", "--task", TASK, "--policy", "juggle"], "policy='juggle'"),
+    (["rollout", "--task", TASK, "--policy", "juggle"], "unknown policy 'juggle'"),
     (["report", "--results", "/nonexistent/results.json"], "/nonexistent/results.json"),
 ])  # fmt: skip
 def test_bad_input_is_one_line_and_status_2(args, named):

@@ -19,7 +19,6 @@ from aed_eval import metrics
 from aed_eval.calibrate import CalibrateConfig, calibrate_detectors
 from aed_eval.collect import CollectConfig, episode_seed, run_collection
 from aed_eval.evaluate import ending_views
-from aed_eval.layout import RunLayout
 from aed_eval.rollout import (
     ROLE,
     RolloutConfig,
@@ -29,8 +28,9 @@ from aed_eval.rollout import (
     stored_rollouts,
 )
 from aed_models.detectors import make_detector, save_detector
+from aed_models.layout import RunLayout
 from aed_models.nn import VisualHeadConfig
-from aed_models.policies import make_policy, policy_config, save_policy
+from aed_models.policies import POLICIES, make_policy, save_policy
 from aed_tasks import solve
 
 AED = str(Path(sys.executable).with_name("aed"))
@@ -86,20 +86,20 @@ def setting(tmp_path_factory) -> dict:
     runs = tmp_path_factory.mktemp("runs")
     layout = RunLayout(runs)
     torch.manual_seed(0)
-    policy = make_policy("naive_dc", policy_config("naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)))
+    policy = make_policy("naive_dc", POLICIES.preset("naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)))
     layout.policy(TASK, "naive_dc").parent.mkdir(parents=True)
     save_trained(layout.policy(TASK, "naive_dc"), policy.eval(), [0])
     detector = layout.detector(TASK, "lstm_ed", "naive_dc")
     detector.parent.mkdir(parents=True)
     save_trained(detector, make_detector("lstm_ed", arch="small_cnn", feature_dim=16, width=4, hidden_dim=16).eval(), [0])
     for split, envs in (("novel", (0,)), ("base", (0, 1))):
-        run_collection(CollectConfig(task=TASK, split=split, envs=envs, num_demos=1, num_successes=0, num_failures=0,
+        run_collection(CollectConfig.from_preset(task=TASK, split=split, envs=envs, num_demos=1, num_successes=0, num_failures=0,
                                      out=layout.data(TASK, split), progress=False))  # fmt: skip
     return {"runs": runs, "layout": layout}
 
 
 def rollout_config(setting: dict, split: str, envs: tuple[int, ...], out: Path, **kwargs) -> RolloutConfig:
-    return RolloutConfig(task=TASK, policy="naive_dc", runs=setting["runs"], split=split, envs=envs, out=out,
+    return RolloutConfig.from_preset(task=TASK, policy="naive_dc", runs=setting["runs"], split=split, envs=envs, out=out,
                          num_demos=1, progress=False, **kwargs)  # fmt: skip
 
 

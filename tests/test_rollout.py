@@ -15,7 +15,7 @@ import pytest
 from aed_eval.collect import CollectConfig, run_collection
 from aed_eval.rollout import ROLE, RolloutConfig, run_rollouts, stored_rollouts
 from aed_models.nn import VisualHeadConfig
-from aed_models.policies import make_policy, policy_config, save_policy
+from aed_models.policies import POLICIES, make_policy, save_policy
 from aed_tasks import trajectory
 
 from .test_collect import digest
@@ -28,17 +28,17 @@ TASK = "PressButton"
 def setting(tmp_path_factory) -> dict:
     """A tiny untrained NaiveDC checkpoint and one novel demonstration of environment 0."""
     root = tmp_path_factory.mktemp("rollout")
-    config = policy_config("naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4))
+    config = POLICIES.preset("naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4))
     checkpoint = root / "policy.pt"
     save_policy(checkpoint, make_policy("naive_dc", config).eval())
     demos = root / "demos"
-    run_collection(CollectConfig(task=TASK, split="novel", envs=(0,), num_demos=1, num_successes=0,
+    run_collection(CollectConfig.from_preset(task=TASK, split="novel", envs=(0,), num_demos=1, num_successes=0,
                                  num_failures=0, out=demos, progress=False))  # fmt: skip
     return {"checkpoint": checkpoint, "demos": demos, "root": root}
 
 
 def config(setting: dict, out: Path, **kwargs) -> RolloutConfig:
-    return RolloutConfig(task=TASK, policy="naive_dc", checkpoint=setting["checkpoint"], demos=setting["demos"],
+    return RolloutConfig.from_preset(task=TASK, policy="naive_dc", checkpoint=setting["checkpoint"], demos=setting["demos"],
                          out=out, envs=(0,), num_episodes=3, num_demos=1, shard_size=1, horizon=12,
                          progress=False, **kwargs)  # fmt: skip
 
@@ -97,12 +97,12 @@ def test_worker_count_does_not_change_the_rollouts(uninterrupted, setting, tmp_p
 
 
 def test_bad_input_is_named(setting, tmp_path):
-    with pytest.raises(ValueError, match="policy='juggle'"):
-        RolloutConfig(task=TASK, policy="juggle", checkpoint=setting["checkpoint"])
+    with pytest.raises(ValueError, match="unknown policy 'juggle'"):
+        RolloutConfig.from_preset(task=TASK, policy="juggle", checkpoint=setting["checkpoint"])
     with pytest.raises(FileNotFoundError, match="no policy checkpoint"):
-        RolloutConfig(task=TASK, policy="dct", checkpoint=tmp_path / "missing.pt")
+        run_rollouts(RolloutConfig.from_preset(task=TASK, policy="dct", checkpoint=tmp_path / "missing.pt"))
     with pytest.raises(trajectory.CollectionError, match="no such collection folder"):
-        run_rollouts(RolloutConfig(task=TASK, policy="naive_dc", checkpoint=setting["checkpoint"],
+        run_rollouts(RolloutConfig.from_preset(task=TASK, policy="naive_dc", checkpoint=setting["checkpoint"],
                                    demos=tmp_path / "nothing", out=tmp_path / "out", progress=False))
     result = subprocess.run([AED, "rollout", "--task", TASK, "--policy", "naive_dc", "--checkpoint",
                              str(tmp_path / "missing.pt")], capture_output=True, text=True, timeout=120)  # fmt: skip

@@ -1,8 +1,9 @@
 """Error detectors, looked up by name.
 
     detector = make_detector("probe", history_dim=policy.history_dim, task_dim=policy.task_dim)
-    config = detector_config("dct_ed", "paper")
-    detector = load_detector("runs/PressButton/detectors/probe-dct/checkpoint.pt")
+    config = DETECTORS.preset("dct_ed", "paper")
+    recipe = DETECTORS.recipe("dct_ed", "mini", "PressButton")
+    detector = load_detector("runs/PressButton/detectors/probe-dct/detector.pt")
 
 Modelling modules are imported only when a detector is built, so importing this package is
 cheap (the `aed` command line lists names without loading torch models).
@@ -10,41 +11,27 @@ cheap (the `aed` command line lists names without loading torch models).
 
 from __future__ import annotations
 
-import dataclasses
-import importlib
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from aed_models.registry import ModelRegistry
 
 if TYPE_CHECKING:
     from aed_models.detectors.base import ErrorDetector
 
-FAMILY = "detector"
-
-
-@dataclass(frozen=True)
-class DetectorEntry:
-    """Where a detector's config and model classes live (imported on demand)."""
-
-    package: str
-    config_class: str
-    model_class: str
-
-    def config_type(self) -> type:
-        return getattr(importlib.import_module(f"aed_models.detectors.{self.package}.configuration_{self.package}"), self.config_class)
-
-    def model_type(self) -> type:
-        return getattr(importlib.import_module(f"aed_models.detectors.{self.package}.modeling_{self.package}"), self.model_class)
-
-
-DETECTORS: dict[str, DetectorEntry] = {
-    "svdd_ed": DetectorEntry("svdd_ed", "SVDDEDConfig", "SVDDED"),
-    "taskemb_ed": DetectorEntry("taskemb_ed", "TaskEmbEDConfig", "TaskEmbED"),
-    "lstm_ed": DetectorEntry("lstm_ed", "LSTMEDConfig", "LSTMED"),
-    "dct_ed": DetectorEntry("dct_ed", "DCTEDConfig", "DCTED"),
-    "probe": DetectorEntry("probe", "ProbeConfig", "Probe"),
-    "rnd_oe": DetectorEntry("rnd_oe", "RNDOEConfig", "RNDOE"),
-}
+DETECTORS = ModelRegistry(
+    family="detector",
+    package="aed_models.detectors",
+    classes={
+        "svdd_ed": ("SVDDEDConfig", "SVDDED"),
+        "taskemb_ed": ("TaskEmbEDConfig", "TaskEmbED"),
+        "lstm_ed": ("LSTMEDConfig", "LSTMED"),
+        "dct_ed": ("DCTEDConfig", "DCTED"),
+        "probe": ("ProbeConfig", "Probe"),
+        "rnd_oe": ("RNDOEConfig", "RNDOE"),
+    },
+)
+FAMILY = DETECTORS.family
 
 # Parameter counts in the paper's attribute table (rnd_oe is not in the paper).
 PAPER_PARAMETERS: dict[str, float] = {
@@ -63,78 +50,26 @@ PAPER_NOTES: dict[str, str] = {
 }
 
 
-def _entry(name: str) -> DetectorEntry:
-    if name not in DETECTORS:
-        raise ValueError(f"unknown detector {name!r}: known {sorted(DETECTORS)}")
-    return DETECTORS[name]
-
-
-def detector_config(name: str, profile: str = "mini") -> Any:
-    """The default config of detector `name` for a profile (`mini`: CPU-sized, `paper`)."""
-    return _entry(name).config_type().for_profile(profile)
+def requires_policy(name: str) -> bool:
+    """Whether detector `name` reads a frozen policy's features (trained once per policy)."""
+    return DETECTORS.model_type(name).requires_policy
 
 
 def make_detector(name: str, config: Any = None, **overrides: Any) -> ErrorDetector:
-    """A freshly initialised detector; `overrides` replace config fields (validated)."""
-    entry = _entry(name)
-    config_type = entry.config_type()
-    if config is None:
-        config = config_type()
-    elif isinstance(config, dict):
-        config = config_from_dict(name, config)
-    elif not isinstance(config, config_type):
-        raise TypeError(f"config of type {type(config).__name__} for {name!r}: expected {config_type.__name__}")
-    if overrides:
-        known = {f.name for f in dataclasses.fields(config_type)}
-        unknown = sorted(set(overrides) - known)
-        if unknown:
-            raise ValueError(f"{name}: unknown config fields {unknown}; known {sorted(known)}")
-        config = dataclasses.replace(config, **overrides)
-    return entry.model_type()(config)
-
-
-def config_from_dict(name: str, values: dict[str, Any]) -> Any:
-    """Rebuild a detector's config dataclass from its `asdict` form (unknown keys refused)."""
-    config_type = _entry(name).config_type()
-    known = {f.name for f in dataclasses.fields(config_type)}
-    unknown = sorted(set(values) - known)
-    if unknown:
-        raise ValueError(f"{name}: config has unknown fields {unknown}; known {sorted(known)}")
-    return config_type(**values)
+    """A freshly initialised detector; `config` defaults to the mini preset, `overrides` replace fields."""
+    return DETECTORS.make(name, config, **overrides)
 
 
 def save_detector(path: Path | str, detector: ErrorDetector, extra: dict[str, Any] | None = None) -> str:
     """Write a detector checkpoint (family `detector`, its name, config, weights); returns sha256."""
-    from aed_models.checkpoint import save_checkpoint
-
-    return save_checkpoint(path, family=FAMILY, name=detector.name, config=detector.config_dict(),
-                           state_dict=detector.state_dict(), extra=extra)  # fmt: skip
+    return DETECTORS.save(path, detector, extra)
 
 
 def load_detector(path: Path | str, name: str | None = None) -> ErrorDetector:
-    """A detector from its checkpoint, in eval mode; `name` (when given) must match the file's.
-
-    The checkpoint's `extra` (task, policy name and sha256, epoch...) is kept as
-    `detector.checkpoint_extra`.
-
-    Raises:
-        CheckpointError: missing / corrupt file, not a detector, or a detector of another name.
-    """
-    from aed_models.checkpoint import CheckpointError, load_checkpoint
-
-    if name is not None:
-        _entry(name)
-    ckpt = load_checkpoint(path, family=FAMILY, name=name)
-    if ckpt.name not in DETECTORS:
-        raise CheckpointError(f"{path}: a detector {ckpt.name!r} unknown here; known {sorted(DETECTORS)}")
-    try:
-        detector = make_detector(ckpt.name, config_from_dict(ckpt.name, ckpt.config))
-        detector.load_state_dict(ckpt.state_dict)
-    except (TypeError, ValueError, RuntimeError) as e:
-        raise CheckpointError(f"{path}: {ckpt.name} checkpoint does not fit its model: {e}") from e
-    detector.checkpoint_extra = ckpt.extra
-    detector.checkpoint_sha256 = ckpt.sha256
-    return detector.eval()
+    """A detector from its checkpoint, in eval mode, with `checkpoint_extra` (task, policy name
+    and sha256, epoch...); `name`, when given, must be the file's (else `CheckpointError`)."""
+    return DETECTORS.load(path, name)
 
 
-__all__ = ["DETECTORS", "PAPER_NOTES", "PAPER_PARAMETERS", "detector_config", "load_detector", "make_detector", "save_detector"]
+__all__ = ["DETECTORS", "PAPER_NOTES", "PAPER_PARAMETERS", "load_detector", "make_detector", "requires_policy",
+           "save_detector"]  # fmt: skip

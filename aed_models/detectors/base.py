@@ -15,21 +15,12 @@ take the pair the policy's `features()` returns.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, ClassVar, Literal
 
 import torch
 from torch import nn
 
 Batch = dict[str, Any]
-
-PROFILES = ("mini", "paper")
-
-
-def check_profile(profile: str) -> None:
-    if profile not in PROFILES:
-        raise ValueError(f"profile={profile!r}: known {list(PROFILES)}")
-
 
 def to_device(value: Any, device: torch.device) -> Any:
     """Tensors inside nested dicts / tuples / lists moved to `device`; anything else as is."""
@@ -59,7 +50,7 @@ class ErrorDetector(nn.Module):
     """Base class: see the module docstring. Subclasses set the class attributes and implement
     `loss`, `score`, `reset` and `step`."""
 
-    name: ClassVar[str] = ""
+    name: ClassVar[str] = ""  # the registry key, set by the registry
     requires_policy: ClassVar[bool] = False
     output: ClassVar[Literal["probability", "distance"]] = "probability"
     trains_on: ClassVar[Literal["both", "successes"]] = "both"
@@ -94,9 +85,6 @@ class ErrorDetector(nn.Module):
     def num_parameters(self, trainable_only: bool = False) -> int:
         return sum(p.numel() for p in self.parameters() if p.requires_grad or not trainable_only)
 
-    def config_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self.config)
-
     def _require_reset(self, state: Any) -> None:
         if state is None:
             raise RuntimeError(f"{self.name}: call reset(demos) before step()")
@@ -115,9 +103,8 @@ def running_max(scores: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     For the detectors without memory (SVDDED, TaskEmbED, RND-OE; their `running_max` option).
     Failure labels run from the error's onset to the end of the rollout: a recurrent or
     attending detector learns from them that an error persists, one that scores each frame
-    alone cannot (a frame after a missed press can look like one before it). Held out under
-    `mini`, frame AUROC rose by 0.06-0.10 for each of them; thresholded online, the first
-    crossing raises the same alarm with or without it.
+    alone cannot (a frame after a missed press can look like one before it). Thresholded
+    online, the first crossing raises the same alarm with or without it.
     """
     return torch.cummax(scores * mask, dim=1).values * mask
 
@@ -151,38 +138,3 @@ def check_frame(frame: torch.Tensor | None, name: str) -> torch.Tensor:
     if frame.dim() != 3:
         raise ValueError(f"frame of shape {tuple(frame.shape)}: expected (4, H, W)")
     return frame[None]
-
-
-@dataclasses.dataclass
-class VisualDetectorConfig:
-    """Fields shared by the policy-independent baselines: their own per-frame visual head.
-
-    Args:
-        arch: `resnet18` (paper) or `small_cnn` (mini, CPU-sized).
-        feature_dim: size of the visual head's output.
-        dropout: dropout after the head's FC (the paper: 0.5).
-        width: first-layer width of `small_cnn`.
-    """
-
-    arch: str = "small_cnn"
-    feature_dim: int = 256
-    dropout: float = 0.5
-    width: int = 32
-
-    def __post_init__(self) -> None:
-        self.visual_head_config()  # validates arch, sizes, dropout
-
-    def visual_head_config(self) -> Any:
-        from aed_models.nn import VisualHeadConfig
-
-        return VisualHeadConfig(arch=self.arch, out_dim=self.feature_dim, dropout=self.dropout, width=self.width)
-
-
-def positive(name: str, value: int | float) -> None:
-    if value <= 0:
-        raise ValueError(f"{name}={value}: must be > 0")
-
-
-def nonnegative(name: str, value: int | float) -> None:
-    if value < 0:
-        raise ValueError(f"{name}={value}: must be >= 0")

@@ -120,7 +120,7 @@ class DCPolicy(nn.Module):
     Online features are inference-mode tensors (read them, do not backpropagate through them).
     """
 
-    name: ClassVar[str] = ""
+    name: ClassVar[str] = ""  # the registry key, set by the registry
     camera = "front"
 
     def __init__(self, config: PolicyConfig, history_dim: int, task_dim: int):

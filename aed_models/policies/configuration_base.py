@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, TypeVar
 
 from aed_models.nn.config import VisualHeadConfig
+from aed_models.recipe import COMPOSITIONS, PolicyRecipe, check_profile, optimiser, paper_epochs
+
+C = TypeVar("C", bound="PolicyConfig")
 
 
 @dataclass
@@ -27,18 +30,19 @@ class PolicyConfig:
             the gripper is too slowly without it (on under `mini`).
         subgoal_weight: weight of a stage-target loss (0 = off, the paper's policies). A linear
             head predicts, from [f_h, f_zeta], the offset from the TCP to where the current stage
-            ends (`aed_models.data.stage_subgoals`, read from the stored TCP poses, no simulator
-            state), and the actor reads that prediction beside [f_h, f_zeta]. Why: with the true
-            offset, an MLP predicts the expert's Press Button actions to 0.10 of their variance,
-            without it to 0.26; behaviour cloning alone did not teach the small CNN where the
-            button is (on under `mini`). As an auxiliary loss only (the actor not reading it),
-            it did not lower the action loss (0.62 vs 0.61 of the variance).
+            ends (`aed_models.data.stage_subgoals`, from the stored TCP poses), and the actor
+            reads that prediction: behaviour cloning alone did not teach the small CNN where
+            the target is (on under `mini`; the README's "Measured here" says how much it helps).
         demo_frames: encode at most this many frames of each demonstration, evenly spread
             (first and last kept), in training and online alike; 0 = every frame. It bounds the
             cost of DCT's and SCAN's demonstration memory (NaiveDC reads only the ends).
     """
 
-    name: ClassVar[str] = ""
+    # Training draws under mini and demo (see `recipe`); a policy class may change them.
+    mini_composition: ClassVar[tuple[int, int]] = (5, 2)
+    demo_composition: ClassVar[tuple[int, int]] = (3, 2)
+    mini_max_frames: ClassVar[int] = 0
+    mini_rollout_frames: ClassVar[str] = "even"
 
     visual: VisualHeadConfig = field(default_factory=VisualHeadConfig)
     actor_hidden: tuple[int, ...] = (256, 64)
@@ -67,6 +71,32 @@ class PolicyConfig:
             raise ValueError(f"demo_frames={self.demo_frames}: 0 (all) or >= 2")
         if self.grip_loss not in ("bce", "mse"):
             raise ValueError(f"grip_loss={self.grip_loss!r}: bce or mse")
+
+    @classmethod
+    def preset(cls: type[C], profile: str) -> C:
+        """The sizes of a profile: `paper` the paper's (ResNet18 head, RGB-D only); `mini` and
+        `demo` CPU-sized (small CNN head, no dropout, proprioception, a stage-target head)."""
+        if check_profile(profile) == "paper":
+            return cls(visual=VisualHeadConfig(arch="resnet18", out_dim=256, dropout=0.5))
+        small = VisualHeadConfig(arch="small_cnn", out_dim=256, dropout=0.0, width=32)
+        return cls(visual=small, proprio=True, subgoal_weight=1.0)
+
+    @classmethod
+    def recipe(cls, profile: str, task: str) -> PolicyRecipe:
+        """How a profile trains: `paper` as the paper (its epochs per task, 5 demonstrations +
+        10 successes an iteration, every frame); `mini` more, smaller updates with a random
+        shift (the class's `mini_*` draws); `demo` the mini recipe for 20 epochs, drawing at
+        most what the demo collects."""
+        if check_profile(profile) == "paper":
+            opt = optimiser(profile)
+            return PolicyRecipe(epochs=paper_epochs(task), lr=opt.lr, weight_decay=opt.weight_decay, max_frames=0,
+                                composition=COMPOSITIONS["policy"].drawn()[:2], rollout_frames="even", shift=0)  # fmt: skip
+        opt = optimiser(profile)
+        return PolicyRecipe(
+            epochs=20 if profile == "demo" else 100, lr=opt.lr, weight_decay=opt.weight_decay,
+            max_frames=cls.mini_max_frames, composition=cls.demo_composition if profile == "demo" else cls.mini_composition,
+            rollout_frames=cls.mini_rollout_frames, shift=4,
+        )  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (lists, not tuples) for checkpoints and logs."""

@@ -5,10 +5,10 @@ Read top to bottom: config -> data (frames, or cached policy features) -> model 
 
 - RMSprop, lr 1e-4, L2 weight decay 1e-2 (as the policies).
 - An epoch walks every base environment once (shuffled); an iteration draws from one
-  environment 5 demonstrations + 10 agent successes + 10 agent failures
-  (`COMPOSITIONS["detector"]`), or 5 + 20 successes for the detectors trained on successes
-  only (SVDDED, RND-OE: `COMPOSITIONS["svdd"]`). Agent rollouts are augmented (keep / drop /
-  swap / copy) unless `augment=False`.
+  environment the recipe's demonstrations + agent successes + agent failures
+  (`DetectorConfig.recipe`; the paper's 5 + 10 + 10), successes in the failures' place for
+  the detectors trained on successes only (SVDDED, RND-OE: 5 + 20). Agent rollouts are
+  augmented (keep / drop / swap / copy) unless `augment=False`.
 - Policy-dependent detectors (PrObe, RND-OE) never see images: the frozen policy's features of
   every base rollout are computed once into `runs/<task>/features/<policy sha256[:16]>/`
   (`aed_models.train.feature_cache`) and the iterations read them from there.
@@ -27,7 +27,7 @@ import time
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import torch
 from torch.utils.data import DataLoader
@@ -36,57 +36,30 @@ from tqdm import tqdm
 from aed_models.augment import RolloutAugment
 from aed_models.checkpoint import file_sha256, load_checkpoint, save_checkpoint
 from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampler, load_episodes
-from aed_models.detectors import DETECTORS, FAMILY, config_from_dict, detector_config, make_detector
+from aed_models.detectors import DETECTORS, FAMILY, make_detector, requires_policy
 from aed_models.detectors.base import to_device
+from aed_models.layout import RunLayout
+from aed_models.recipe import DetectorRecipe, Profile, check_profile
 from aed_models.train.feature_cache import FeatureCache, FeatureIterations
-from aed_models.train.policy import (
-    resolve_schedule,
-    seed_everything,
-    select_environments,
-    trained_on,
-)
+from aed_models.train.policy import seed_everything, select_environments, trained_on
 
 logger = logging.getLogger(__name__)
 
-MINI = {"epochs": 20, "num_envs": None, "lr": 3e-4, "weight_decay": 0.0}  # lr and L2 as the policies' (see there)
-# The visual baselines train their encoders from scratch on 2 cores: more, smaller updates
-# (3 demos + 4 successes + 4 failures) teach them more per CPU second than the paper's 5 + 10
-# + 10. On Press Button (22 environments) TaskEmbED's loss sat at the base rate for ~400
-# updates, then fell; 50 epochs of 8 frames cost what 6 epochs of 32 did (held-out frame
-# AUROC 0.77 vs 0.58). Single-frame detectors lose nothing by seeing fewer frames per
-# episode; temporal ones see every frame, so that they meet online the frame rate they were
-# trained at. PrObe and RND-OE read cached features: the paper's composition costs little.
-# Epochs: until the training loss flattens. TaskEmbED's was still falling at 50 (Pick & Place,
-# 18 environments: 0.45 at 50, 0.10-0.15 from ~110 on; held out 0.66 -> 0.72, Press Button 0.82 ->
-# 0.79); LSTMED's sat at the base rate for 10 epochs on Pick & Place, then fell (0.59 -> 0.50
-# at 30).
-MINI_EPOCHS = {"svdd_ed": 50, "taskemb_ed": 150, "lstm_ed": 30, "dct_ed": 8, "probe": 30, "rnd_oe": 30}
-MINI_MAX_FRAMES = {"svdd_ed": 8, "taskemb_ed": 8}
-MINI_COMPOSITION = {name: (3, 4, 4) for name in ("svdd_ed", "taskemb_ed", "lstm_ed", "dct_ed")}
-
-
 @dataclass
-class TrainDetectorConfig:
-    """Training of one error detector on one task's base-split collection.
+class TrainDetectorConfig(DetectorRecipe):
+    """Training of one error detector on one task's base-split collection: the recipe's fields
+    (epochs, lr, weight_decay, max_frames, composition) and what to train. Build it with
+    `from_preset`, which fills the recipe of (detector, profile, task) and the layout's paths.
 
     Args:
         task: task name (e.g. PressButton).
         detector: svdd_ed, taskemb_ed, lstm_ed, dct_ed, probe or rnd_oe.
-        policy: the frozen policy (probe, rnd_oe only): a policy name, read from
-            runs/<task>/policies/<name>/policy.pt, or a checkpoint path.
-        profile: mini (CPU-sized) or paper (the paper's sizes).
-        data: collection folder (default runs/<task>/data/base).
-        out: output folder (default runs/<task>/detectors/<detector>[-<policy>]).
-        epochs: epochs (default: mini `MINI_EPOCHS`; paper the task's policy epoch count).
-        num_envs: use the first N base environments (default: all).
-        max_frames: frames per episode per iteration, evenly spread; 0 = all (default: mini
-            8 for the single-frame svdd_ed / taskemb_ed, else all).
-        composition: demonstrations, successes, failures per iteration (default: the paper's
-            5, 10, 10; mini visual baselines 3, 4, 4); detectors trained on successes only
-            take successes in the failures' place (5 + 20).
+        profile: the preset of the model's sizes and of the recipe (mini, paper, demo).
+        data: collection folder.
+        out: output folder (checkpoints and log).
+        policy: the frozen policy's checkpoint (probe, rnd_oe only; None for the others).
         augment: rollout augmentation (paper: on; off for the ablation).
-        lr: RMSprop learning rate (default: paper 1e-4; mini 3e-4).
-        weight_decay: L2 weight (default: paper 1e-2; mini 0, as the mini policies).
+        num_envs: use the first N base environments (0: all).
         seed: seeds the model, the draws and the augmentation.
         resume: continue from <out>/last.pt when it exists.
         progress: show progress bars.
@@ -94,19 +67,14 @@ class TrainDetectorConfig:
         workers: DataLoader worker processes (0 = read in the main process).
     """
 
-    task: str = "PressButton"
-    detector: str = "probe"
+    task: str
+    detector: str
+    profile: Profile
+    data: Path
+    out: Path
     policy: str | None = None
-    profile: Literal["mini", "paper"] = "mini"
-    data: Path | None = None
-    out: Path | None = None
-    epochs: int | None = None
-    num_envs: int | None = None
-    max_frames: int | None = None
-    composition: tuple[int, int, int] | None = None
     augment: bool = True
-    lr: float | None = None
-    weight_decay: float | None = None
+    num_envs: int = 0
     seed: int = 0
     resume: bool = True
     progress: bool = True
@@ -114,38 +82,39 @@ class TrainDetectorConfig:
     workers: int = 0
 
     def __post_init__(self) -> None:
-        if self.detector not in DETECTORS:
-            raise ValueError(f"detector={self.detector!r}: known {sorted(DETECTORS)}")
-        needs_policy = DETECTORS[self.detector].model_type().requires_policy
-        if needs_policy and not self.policy:
+        super().__post_init__()
+        DETECTORS.check(self.detector)
+        check_profile(self.profile)
+        if requires_policy(self.detector) and not self.policy:
             raise ValueError(f"policy=None: detector {self.detector!r} reads a policy's features; name the policy")
-        mini = {**MINI, "epochs": MINI_EPOCHS.get(self.detector, MINI["epochs"])}
-        resolve_schedule(self, mini, MINI_MAX_FRAMES.get(self.detector, 0))
-        if self.composition is None and self.profile == "mini":
-            self.composition = MINI_COMPOSITION.get(self.detector)
-        if self.composition is not None:
-            self.composition = tuple(int(n) for n in self.composition)
-            if len(self.composition) != 3 or min(self.composition) < 0 or self.composition[0] < 1:
-                raise ValueError(f"composition={self.composition}: (demos >= 1, successes >= 0, failures >= 0)")
-        runs = Path("runs") / self.task
-        self.data = Path(self.data) if self.data is not None else runs / "data" / "base"
-        if self.out is None:
-            suffix = ""
-            if needs_policy:
-                label = Path(self.policy).parent.name if Path(self.policy).suffix else Path(self.policy).name
-                suffix = f"-{label}"
-            self.out = runs / "detectors" / f"{self.detector}{suffix}"
-        self.out = Path(self.out)
+        if self.num_envs < 0 or self.workers < 0:
+            raise ValueError(f"num_envs={self.num_envs}, workers={self.workers}: must be >= 0")
+        self.data, self.out = Path(self.data), Path(self.out)
+
+    @classmethod
+    def from_preset(cls, task: str = "PressButton", detector: str = "probe", profile: str = "mini",
+                    policy: str | None = None, runs: Path = Path("runs"), **overrides: Any) -> TrainDetectorConfig:  # fmt: skip
+        """The recipe of (detector, profile, task), the layout's paths under `runs`, then
+        `overrides`. `policy` is a policy name (its checkpoint in the layout) or a checkpoint path."""
+        layout = RunLayout(runs)
+        label = None
+        if policy is not None and requires_policy(detector):
+            path = Path(policy)
+            label = path.parent.name if path.suffix else path.name
+            policy = str(path if path.suffix or path.is_dir() else layout.policy(task, policy))
+        preset = {**dataclasses.asdict(DETECTORS.recipe(detector, profile, task)), "task": task, "detector": detector,
+                  "profile": profile, "policy": policy, "data": layout.data(task, "base"),
+                  "out": layout.detector(task, detector, label or "").parent}  # fmt: skip
+        return cls(**{**preset, **overrides})
+
+    def recipe(self) -> DetectorRecipe:
+        return DetectorRecipe(**{f.name: getattr(self, f.name) for f in dataclasses.fields(DetectorRecipe)})
 
     def policy_path(self) -> Path:
-        """The policy checkpoint: `policy` itself when it is a file, else the named policy's."""
+        """The policy checkpoint: `policy` itself, or `policy.pt` in it when it is a folder."""
         assert self.policy is not None
         path = Path(self.policy)
-        if path.is_file():
-            return path
-        if path.is_dir():
-            return path / "policy.pt"
-        return Path("runs") / self.task / "policies" / self.policy / "policy.pt"
+        return path / "policy.pt" if path.is_dir() else path
 
 
 def load_frozen_policy(cfg: TrainDetectorConfig) -> tuple[Any, str, str]:
@@ -163,12 +132,10 @@ def load_frozen_policy(cfg: TrainDetectorConfig) -> tuple[Any, str, str]:
 
 def build_dataset(cfg: TrainDetectorConfig, detector_name: str, episodes: list, policy: Any, policy_sha: str) -> Any:
     """Frame iterations for the visual baselines, cached-feature iterations for the others."""
-    model_type = DETECTORS[detector_name].model_type()
-    composition: Composition | str = "svdd" if model_type.trains_on == "successes" else "detector"
-    if cfg.composition is not None:
-        demos, successes, failures = cfg.composition
-        only_successes = model_type.trains_on == "successes"
-        composition = Composition(demos, successes + failures, 0) if only_successes else Composition(demos, successes, failures)
+    model_type = DETECTORS.model_type(detector_name)
+    demos, successes, failures = cfg.composition
+    only_successes = model_type.trains_on == "successes"
+    composition = Composition(demos, successes + failures, 0) if only_successes else Composition(demos, successes, failures)
     augment = RolloutAugment(enabled=cfg.augment)
     max_frames = cfg.max_frames or None
     if not model_type.requires_policy:
@@ -205,7 +172,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
     last_path, final_path, log_path = out / "last.pt", out / "detector.pt", out / "train_log.json"
     seed_everything(cfg.seed)
     device = torch.device(cfg.device)
-    model_type = DETECTORS[cfg.detector].model_type()
+    model_type = DETECTORS.model_type(cfg.detector)
 
     # the frozen policy (policy-dependent detectors only)
     policy, policy_name, policy_sha = None, None, None
@@ -219,7 +186,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
     logger.info("%s on %s: %d environments, %d episodes", cfg.detector, cfg.data, len(dataset), len(episodes))
 
     # model and optimiser
-    detector_cfg = detector_cfg or detector_config(cfg.detector, cfg.profile)
+    detector_cfg = detector_cfg or DETECTORS.preset(cfg.detector, cfg.profile)
     overrides = {"history_dim": policy.history_dim} if policy is not None else {}
     if policy is not None and cfg.detector == "probe":
         overrides["task_dim"] = policy.task_dim
@@ -237,7 +204,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
         if ckpt.extra.get("policy_sha256") != policy_sha:
             raise ValueError(f"{last_path}: trained on policy {ckpt.extra.get('policy_sha256')}, not {policy_sha}; "
                              "use another out folder or resume=False")  # fmt: skip
-        if config_from_dict(cfg.detector, ckpt.config) != detector.config:  # fields added since: their defaults
+        if DETECTORS.config_from_dict(cfg.detector, ckpt.config) != detector.config:  # fields added since: their defaults
             raise ValueError(f"{last_path}: trained with another {cfg.detector} config ({ckpt.config}); "
                              "pass --no-resume or another --out")  # fmt: skip
         detector.load_state_dict(ckpt.state_dict)
@@ -272,13 +239,13 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
                  "seconds": round(seconds, 2), "frames_per_s": round(frames / seconds, 1)}  # fmt: skip
         log.append(entry)
         logger.info("epoch %d/%d: %s", epoch + 1, cfg.epochs, entry)
-        save_checkpoint(last_path, family=FAMILY, name=cfg.detector, config=detector.config_dict(),
+        save_checkpoint(last_path, family=FAMILY, name=cfg.detector, config=detector.config.to_dict(),
                         state_dict=detector.state_dict(),
                         extra={**provenance, "epoch": epoch + 1, "optimizer": optimizer.state_dict(),
                                "torch_rng": torch.get_rng_state(), "log": log, "train_config": train_config})  # fmt: skip
         log_path.write_text(json.dumps(log, indent=1))
 
-    sha = save_checkpoint(final_path, family=FAMILY, name=cfg.detector, config=detector.config_dict(),
+    sha = save_checkpoint(final_path, family=FAMILY, name=cfg.detector, config=detector.config.to_dict(),
                           state_dict=detector.state_dict(),
                           extra={**provenance, "epoch": cfg.epochs, "log": log, "train_config": train_config})  # fmt: skip
     logger.info("wrote %s (sha256 %s)", final_path, sha[:12])

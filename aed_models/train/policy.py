@@ -2,38 +2,15 @@
 
 Read top to bottom: config -> data -> model -> (resume) -> epochs -> final checkpoint.
 
-- RMSprop, lr 1e-4, L2 weight decay 1e-2.
-- An epoch walks every base environment once (shuffled); an iteration draws from one
-  environment 5 demonstrations + 10 agent successes (`COMPOSITIONS["policy"]`).
+- RMSprop; an epoch walks every base environment once (shuffled); an iteration draws from one
+  environment the recipe's demonstrations + agent successes (`PolicyConfig.recipe`).
 - Actions are standardised with statistics of the training rollouts (see `DCPolicy`).
 - After every epoch, `<out>/last.pt` holds model, optimizer, RNG state, epoch and the log,
   so an interrupted run resumes where it stopped and ends with the same weights;
   `<out>/train_log.json` holds the per-epoch losses. The result is `<out>/policy.pt`.
-
-Profiles: `paper` keeps the paper's sizes (ResNet18 head, all frames, every base
-environment, the paper's epochs per task). `mini` is sized for a 2-core CPU: the small CNN
-head (no dropout) with proprioception and a stage-target head (`PolicyConfig.subgoal_weight`),
-every environment of the collection, a random shift of +-4 px on frames, lr 3e-4 and no weight
-decay, 100 epochs; an iteration draws 5 demonstrations + 2 successes (NaiveDC: + 8 successes,
-8 random frames of each).
-
-Why, as measured here:
-- A from-scratch small CNN starts with nearly constant features and the loss sits at the
-  actions' variance for ~70 iterations before it falls (PickPlace frames); RMSprop normalises
-  the step, so an L2 term of 1e-2 outweighs those tiny early gradients, and lr 1e-3 collapsed
-  the features.
-- More, smaller updates: NaiveDC on Press Button (8 environments) reached 0.85 of the actions'
-  variance after 240 iterations of 5 + 10 (460 s) and 0.61 after 800 iterations of 5 + 2
-  (about the same time).
-- Many environments: a small CNN regressing where the button is, trained on 8 Press Button
-  environments, memorises them (21.8 cm off in unseen ones, worse than the mean's 12.5 cm);
-  trained on 25 it is 4.5 cm off in unseen ones (`scripts/localization_probe.py`).
-- Many scenes per update: NaiveDC on 27 Press Button environments reached 0.56 of the actions'
-  variance after 21 epochs of 8 successes x 8 frames, against 0.69 after 25 epochs of
-  2 successes x 32 frames (the same frames per iteration, four times the button positions).
-- DCT and SCAN model time step by step, so they see every rollout frame: trained on
-  subsampled episodes they would meet a different frame rate online. Their demonstrations are
-  thinned (`PolicyConfig.demo_frames`) identically in training and online.
+- DCT and SCAN model time step by step, so they see every rollout frame (trained on subsampled
+  episodes they would meet another frame rate online); their demonstrations are thinned
+  (`PolicyConfig.demo_frames`) identically in training and online.
 """
 
 from __future__ import annotations
@@ -46,7 +23,7 @@ import time
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import h5py
 import numpy as np
@@ -57,41 +34,26 @@ from tqdm import tqdm
 
 from aed_models.checkpoint import load_checkpoint, save_checkpoint
 from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampler, load_episodes
-from aed_models.policies import FAMILY, POLICIES, PolicyConfig, make_policy, policy_config
+from aed_models.layout import RunLayout
+from aed_models.policies import FAMILY, POLICIES, PolicyConfig, make_policy
+from aed_models.recipe import PolicyRecipe, Profile, check_profile
 
 logger = logging.getLogger(__name__)
 
-# Paper, appendix table "FSI task configurations": epochs per task.
-PAPER_EPOCHS = {"CloseDrawer": 160, "PressButton": 40, "PickPlace": 50, "MoveGlassCup": 50,
-                "OrganizeTable": 50, "BackToBox": 50, "FactoryPacking": 80}  # fmt: skip
-MINI = {"epochs": 100, "num_envs": None, "shift": 4, "lr": 3e-4, "weight_decay": 0.0, "composition": (5, 2)}
-PAPER = {"lr": 1e-4, "weight_decay": 1e-2}
-MINI_MAX_FRAMES = {"naive_dc": 8}  # others: every frame (see the module docstring)
-MINI_ROLLOUT_FRAMES = {"naive_dc": "random"}
-MINI_COMPOSITION = {"naive_dc": (5, 8)}  # others: MINI["composition"]
-
-
 @dataclass
-class TrainPolicyConfig:
-    """Behaviour cloning of one policy on one task's base-split collection.
+class TrainPolicyConfig(PolicyRecipe):
+    """Behaviour cloning of one policy on one task's base-split collection: the recipe's fields
+    (epochs, lr, weight_decay, max_frames, composition, rollout_frames, shift) and what to train.
+    Build it with `from_preset`, which fills the recipe of (policy, profile, task) and the
+    paths of the runs layout.
 
     Args:
         task: task name (e.g. PressButton).
         policy: naive_dc, dct or scan.
-        profile: mini (CPU-sized) or paper (the paper's sizes).
-        data: collection folder (default runs/<task>/data/base).
-        out: output folder (default runs/<task>/policies/<policy>).
-        epochs: epochs (default: mini 100; paper the paper's count for the task).
-        num_envs: use the first N base environments (default: all).
-        max_frames: frames per episode per iteration, evenly spread; 0 = all (default:
-            mini 8 for naive_dc, else all).
-        composition: demonstrations and agent successes per iteration (default: paper 5, 10
-            as the paper; mini 5, 8 for naive_dc, else 5, 2).
-        rollout_frames: how `max_frames` picks rollout frames: even, or a fresh random subset
-            per draw (default: mini random for naive_dc, else even).
-        shift: random-shift augmentation in pixels, per sequence (default: mini 4; paper 0).
-        lr: RMSprop learning rate (default: paper 1e-4; mini 3e-4).
-        weight_decay: L2 weight (default: paper 1e-2; mini 0: see the module docstring).
+        profile: the preset of the model's sizes and of the recipe (mini, paper, demo).
+        data: collection folder.
+        out: output folder (checkpoints and log).
+        num_envs: use the first N base environments (0: all).
         seed: seeds the model, the draws and the augmentation.
         resume: continue from <out>/last.pt when it exists.
         progress: show a progress bar.
@@ -99,19 +61,12 @@ class TrainPolicyConfig:
         workers: DataLoader worker processes (0 = read in the main process).
     """
 
-    task: str = "PressButton"
-    policy: str = "naive_dc"
-    profile: Literal["mini", "paper"] = "mini"
-    data: Path | None = None
-    out: Path | None = None
-    epochs: int | None = None
-    num_envs: int | None = None
-    max_frames: int | None = None
-    rollout_frames: Literal["even", "random"] | None = None
-    composition: tuple[int, int] | None = None
-    shift: int | None = None
-    lr: float | None = None
-    weight_decay: float | None = None
+    task: str
+    policy: str
+    profile: Profile
+    data: Path
+    out: Path
+    num_envs: int = 0
     seed: int = 0
     resume: bool = True
     progress: bool = True
@@ -119,51 +74,24 @@ class TrainPolicyConfig:
     workers: int = 0
 
     def __post_init__(self) -> None:
-        if self.policy not in POLICIES:
-            raise ValueError(f"policy={self.policy!r}: known {', '.join(POLICIES)}")
-        resolve_schedule(self, MINI, MINI_MAX_FRAMES.get(self.policy, 0))
-        if self.composition is None and self.profile == "mini":
-            self.composition = MINI_COMPOSITION.get(self.policy, MINI["composition"])
-        if self.composition is not None:
-            self.composition = tuple(int(n) for n in self.composition)
-            if len(self.composition) != 2 or min(self.composition) < 1:
-                raise ValueError(f"composition={self.composition}: (demos >= 1, successes >= 1)")
-        if self.rollout_frames is None:
-            self.rollout_frames = MINI_ROLLOUT_FRAMES.get(self.policy, "even") if self.profile == "mini" else "even"
-        if self.shift is None:
-            self.shift = MINI["shift"] if self.profile == "mini" else 0
-        if self.shift < 0:
-            raise ValueError(f"shift={self.shift}: must be >= 0")
-        self.data = Path(self.data) if self.data is not None else Path("runs") / self.task / "data" / "base"
-        self.out = Path(self.out) if self.out is not None else Path("runs") / self.task / "policies" / self.policy
+        super().__post_init__()
+        POLICIES.check(self.policy)
+        check_profile(self.profile)
+        if self.num_envs < 0 or self.workers < 0:
+            raise ValueError(f"num_envs={self.num_envs}, workers={self.workers}: must be >= 0")
+        self.data, self.out = Path(self.data), Path(self.out)
 
+    @classmethod
+    def from_preset(cls, task: str = "PressButton", policy: str = "naive_dc", profile: str = "mini",
+                    runs: Path = Path("runs"), **overrides: Any) -> TrainPolicyConfig:  # fmt: skip
+        """The recipe of (policy, profile, task), the layout's paths under `runs`, then `overrides`."""
+        layout = RunLayout(runs)
+        preset = {**dataclasses.asdict(POLICIES.recipe(policy, profile, task)), "task": task, "policy": policy,
+                  "profile": profile, "data": layout.data(task, "base"), "out": layout.policy(task, policy).parent}  # fmt: skip
+        return cls(**{**preset, **overrides})
 
-def resolve_schedule(cfg: Any, mini: dict[str, Any], mini_max_frames: int) -> None:
-    """Fill a training config's unset epochs, num_envs, max_frames, lr and weight_decay from its
-    profile (`paper`: the paper's epochs for the task, every environment, all frames, lr 1e-4,
-    L2 1e-2; `mini`: the values in `mini`), then check them. Shared by policies and detectors."""
-    if cfg.profile not in ("mini", "paper"):
-        raise ValueError(f"profile={cfg.profile!r}: mini or paper")
-    is_mini = cfg.profile == "mini"
-    if cfg.epochs is None:
-        if not is_mini and cfg.task not in PAPER_EPOCHS:
-            raise ValueError(f"task={cfg.task!r}: no paper epoch count (known {sorted(PAPER_EPOCHS)}); pass epochs")
-        cfg.epochs = mini["epochs"] if is_mini else PAPER_EPOCHS[cfg.task]
-    if cfg.num_envs is None and is_mini:
-        cfg.num_envs = mini["num_envs"]
-    if cfg.max_frames is None:
-        cfg.max_frames = mini_max_frames if is_mini else 0
-    for name in ("lr", "weight_decay"):
-        if getattr(cfg, name) is None:
-            setattr(cfg, name, (mini if is_mini else PAPER)[name])
-    for name in ("epochs", "num_envs"):
-        value = getattr(cfg, name)
-        if value is not None and value < 1:
-            raise ValueError(f"{name}={value}: must be >= 1")
-    if cfg.max_frames < 0 or cfg.max_frames == 1:
-        raise ValueError(f"max_frames={cfg.max_frames}: 0 (all) or >= 2")
-    if cfg.lr <= 0 or cfg.weight_decay < 0:
-        raise ValueError(f"lr={cfg.lr}, weight_decay={cfg.weight_decay}: lr > 0, weight_decay >= 0")
+    def recipe(self) -> PolicyRecipe:
+        return PolicyRecipe(**{f.name: getattr(self, f.name) for f in dataclasses.fields(PolicyRecipe)})
 
 
 def seed_everything(seed: int) -> None:
@@ -171,9 +99,9 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def select_environments(episodes: list, num_envs: int | None) -> list:
-    """The episodes of the first `num_envs` environments (by index)."""
-    if num_envs is None:
+def select_environments(episodes: list, num_envs: int) -> list:
+    """The episodes of the first `num_envs` environments (by index; 0: all)."""
+    if not num_envs:
         return episodes
     keep = set(sorted({e.env_index for e in episodes})[:num_envs])
     return [e for e in episodes if e.env_index in keep]
@@ -235,13 +163,13 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
 
     # data
     episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
-    composition = Composition(*cfg.composition) if cfg.composition else "policy"
+    composition = Composition(*cfg.composition)
     dataset = EnvironmentIterations(episodes, composition, max_frames=cfg.max_frames or None, seed=cfg.seed,
                                     rollout_frames=cfg.rollout_frames)  # fmt: skip
     logger.info("%s on %s: %d environments, %d episodes", cfg.policy, cfg.data, len(dataset), len(episodes))
 
     # model and optimiser
-    policy_cfg = policy_cfg or policy_config(cfg.policy, cfg.profile)
+    policy_cfg = policy_cfg or POLICIES.preset(cfg.policy, cfg.profile)
     policy = make_policy(cfg.policy, policy_cfg).to(device)
     optimizer = torch.optim.RMSprop(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     train_config = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()}

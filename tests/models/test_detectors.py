@@ -13,7 +13,6 @@ from aed_models.checkpoint import CheckpointError
 from aed_models.detectors import (
     DETECTORS,
     PAPER_PARAMETERS,
-    detector_config,
     load_detector,
     make_detector,
     save_detector,
@@ -125,10 +124,10 @@ def test_registry_errors_and_profiles():
     with pytest.raises(ValueError, match="hidden_dim=0"):
         make_detector("probe", hidden_dim=0)
     with pytest.raises(ValueError, match="profile"):
-        detector_config("probe", "huge")
+        DETECTORS.preset("probe", "huge")
     assert set(PAPER_PARAMETERS) == set(DETECTORS) - {"rnd_oe"}
     for name in DETECTORS:
-        assert detector_config(name, "mini") is not None and detector_config(name, "paper") is not None
+        assert DETECTORS.preset(name, "mini") is not None and DETECTORS.preset(name, "paper") is not None
 
 
 def test_interface_attributes():
@@ -256,10 +255,10 @@ def collection(tmp_path_factory):
 @pytest.fixture(scope="module")
 def tiny_policy(tmp_path_factory):
     from aed_models.nn import VisualHeadConfig
-    from aed_models.policies import make_policy, policy_config, save_policy
+    from aed_models.policies import POLICIES, make_policy, save_policy
 
     torch.manual_seed(0)
-    config = policy_config("naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4))
+    config = POLICIES.preset("naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4))
     path = tmp_path_factory.mktemp("policy") / "policy.pt"
     save_policy(path, make_policy("naive_dc", config).eval())
     return path
@@ -269,18 +268,18 @@ def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
     from aed_models.train.detector import TrainDetectorConfig, train_detector
 
     config = make_detector("lstm_ed", **TINY["lstm_ed"]).config
-    cfg = TrainDetectorConfig(detector="lstm_ed", data=collection, out=tmp_path, epochs=1, num_envs=1, max_frames=6, progress=False)
+    cfg = TrainDetectorConfig.from_preset(detector="lstm_ed", data=collection, out=tmp_path, epochs=1, num_envs=1, max_frames=6, progress=False)
     first = load_detector(train_detector(cfg, config))
     assert first.checkpoint_extra["task"] == "PressButton" and len(first.checkpoint_extra["log"]) == 1
-    cfg2 = TrainDetectorConfig(detector="lstm_ed", data=collection, out=tmp_path, epochs=2, num_envs=1, max_frames=6, progress=False)
+    cfg2 = TrainDetectorConfig.from_preset(detector="lstm_ed", data=collection, out=tmp_path, epochs=2, num_envs=1, max_frames=6, progress=False)
     second = load_detector(train_detector(cfg2, config))
     log = second.checkpoint_extra["log"]
     assert [e["epoch"] for e in log] == [1, 2] and log[0] == first.checkpoint_extra["log"][0]
     with pytest.raises(ValueError, match="policy=None"):
-        TrainDetectorConfig(detector="probe")
+        TrainDetectorConfig.from_preset(detector="probe")
     other = make_detector("lstm_ed", **{**TINY["lstm_ed"], "head_dim": 9}).config
     with pytest.raises(ValueError, match="another lstm_ed config"):
-        train_detector(TrainDetectorConfig(detector="lstm_ed", data=collection, out=tmp_path, epochs=3, num_envs=1,
+        train_detector(TrainDetectorConfig.from_preset(detector="lstm_ed", data=collection, out=tmp_path, epochs=3, num_envs=1,
                                            max_frames=6, progress=False), other)  # fmt: skip
 
 
@@ -288,18 +287,20 @@ def test_train_detector_config_profiles_and_composition(collection):
     from aed_models.data import Composition, load_episodes
     from aed_models.train.detector import TrainDetectorConfig, build_dataset
 
-    mini, paper = TrainDetectorConfig(detector="lstm_ed"), TrainDetectorConfig(detector="lstm_ed", profile="paper")
+    mini, paper = TrainDetectorConfig.from_preset(detector="lstm_ed"), TrainDetectorConfig.from_preset(detector="lstm_ed", profile="paper")
     assert (mini.lr, mini.weight_decay, paper.lr, paper.weight_decay) == (3e-4, 0.0, 1e-4, 1e-2)
-    assert (mini.composition, mini.epochs, mini.num_envs, paper.composition) == ((3, 4, 4), 30, None, None)
-    single = TrainDetectorConfig(detector="taskemb_ed")
+    assert (mini.composition, mini.epochs, mini.num_envs, paper.composition) == ((3, 4, 4), 30, 0, (5, 10, 10))
+    single = TrainDetectorConfig.from_preset(detector="taskemb_ed")
     assert (single.max_frames, single.epochs, mini.max_frames) == (8, 150, 0)  # temporal detectors: every frame
-    assert TrainDetectorConfig(detector="probe", policy="dct").composition is None  # cached features: the paper's
+    assert TrainDetectorConfig.from_preset(detector="probe", policy="dct").composition == (5, 10, 10)  # cached features: the paper's
+    demo = TrainDetectorConfig.from_preset(detector="svdd_ed", profile="demo")
+    assert (demo.epochs, demo.composition, demo.max_frames) == (4, (3, 4, 3), 8)
     episodes = load_episodes(collection)
     for name, expected in (("lstm_ed", Composition(2, 3, 1)), ("svdd_ed", Composition(2, 4, 0))):
-        cfg = TrainDetectorConfig(detector=name, data=collection, composition=(2, 3, 1))
+        cfg = TrainDetectorConfig.from_preset(detector=name, data=collection, composition=(2, 3, 1))
         assert build_dataset(cfg, name, episodes, None, "").composition == expected
     with pytest.raises(ValueError, match="composition"):
-        TrainDetectorConfig(detector="lstm_ed", composition=(0, 3, 1))
+        TrainDetectorConfig.from_preset(detector="lstm_ed", composition=(0, 3, 1))
 
 
 def test_probe_trains_on_cached_features(collection, tiny_policy, tmp_path):
@@ -307,7 +308,7 @@ def test_probe_trains_on_cached_features(collection, tiny_policy, tmp_path):
     from aed_models.train.detector import TrainDetectorConfig, train_detector
 
     config = make_detector("probe", **TINY["probe"]).config  # feature sizes come from the policy
-    cfg = TrainDetectorConfig(detector="probe", policy=str(tiny_policy), data=collection, out=tmp_path / "probe",
+    cfg = TrainDetectorConfig.from_preset(detector="probe", policy=str(tiny_policy), data=collection, out=tmp_path / "probe",
                               epochs=1, progress=False)  # fmt: skip
     detector = load_detector(train_detector(cfg, config))
     extra = detector.checkpoint_extra
@@ -466,6 +467,6 @@ def test_detector_benchmark_runs_every_mini_detector():
     for name in DETECTORS:
         overrides = {"history_dim": cfg.history_dim, "task_dim": cfg.task_dim} if name == "probe" else {}
         overrides = {"history_dim": cfg.history_dim} if name == "rnd_oe" else overrides
-        detector = make_detector(name, detector_config(name, "mini"), **overrides)
+        detector = make_detector(name, DETECTORS.preset(name, "mini"), **overrides)
         t10, t200 = bench.online_latency(detector, batch["demos"], cfg)
         assert t10 > 0 and t200 > 0 and bench.train_throughput(detector, cfg) > 0

@@ -12,7 +12,7 @@ import torch
 
 from aed_models.checkpoint import CheckpointError, save_checkpoint
 from aed_models.nn import VisualHeadConfig
-from aed_models.policies import POLICIES, load_policy, make_policy, policy_config, save_policy
+from aed_models.policies import POLICIES, load_policy, make_policy, save_policy
 from aed_models.train.policy import TrainPolicyConfig, train_policy
 from aed_tasks import trajectory
 from aed_tasks.episode import Episode
@@ -28,7 +28,7 @@ TINY = {
 
 def tiny_config(name: str, profile: str = "mini"):
     visual = VisualHeadConfig(arch="small_cnn", out_dim=16, width=4, dropout=0.5)
-    return policy_config(name, profile, visual=visual, actor_hidden=(16, 8), **TINY[name])
+    return POLICIES.preset(name, profile, visual=visual, actor_hidden=(16, 8), **TINY[name])
 
 
 def tiny_policy(name: str, seed: int = 0, **overrides):
@@ -73,7 +73,7 @@ def test_forward_backward_shapes_and_input_unchanged(name, batch):
 
 def test_paper_dims_match_the_papers_table():
     for name, task_dim in (("naive_dc", 512), ("dct", 256), ("scan", 256)):
-        config = policy_config(name, "paper")
+        config = POLICIES.preset(name, "paper")
         assert config.visual.arch == "resnet18" and config.visual.dropout == 0.5
         policy = make_policy(name, config)
         assert (policy.history_dim, policy.task_dim) == (256, task_dim)
@@ -190,12 +190,12 @@ def test_wrong_checkpoints_and_names_are_clear_errors(tmp_path):
     save_checkpoint(tmp_path / "bad.pt", family="policy", name="dct", config=config, state_dict={"w": torch.ones(1)})
     with pytest.raises(CheckpointError, match="bad.pt: does not fit policy 'dct'"):
         load_policy(tmp_path / "bad.pt")
-    with pytest.raises(ValueError, match="unknown policy 'bc'; known policies: naive_dc, dct, scan"):
+    with pytest.raises(ValueError, match="unknown policy 'bc'; known: naive_dc, dct, scan"):
         make_policy("bc")
     with pytest.raises(ValueError, match="num_heads=5"):
-        policy_config("dct", "mini", num_heads=5)
+        POLICIES.preset("dct", "mini", num_heads=5)
     with pytest.raises(ValueError, match="actor_hidden"):
-        policy_config("scan", "mini", actor_hidden=())
+        POLICIES.preset("scan", "mini", actor_hidden=())
 
 
 # --- training on a synthetic collection (no simulation) --------------------------------------
@@ -244,7 +244,7 @@ def collection(tmp_path_factory) -> Path:
 
 def train_config(collection: Path, out: Path, **kw) -> TrainPolicyConfig:
     base = {"task": "PressButton", "data": collection, "out": out, "progress": False, "shift": 2}
-    return TrainPolicyConfig(**{**base, **kw})
+    return TrainPolicyConfig.from_preset(**{**base, **kw})
 
 
 def test_training_loss_falls(collection, tmp_path):
@@ -274,35 +274,42 @@ def test_resume_gives_the_same_weights(collection, tmp_path):
 
 
 def test_paper_profile_runs_one_iteration(collection, tmp_path):
-    cfg = train_config(collection, tmp_path / "paper", policy="scan", profile="paper", epochs=1, num_envs=1, max_frames=4, shift=None)
+    cfg = TrainPolicyConfig.from_preset("PressButton", "scan", "paper", data=collection, out=tmp_path / "paper", epochs=1,
+                                        num_envs=1, max_frames=4, progress=False)  # fmt: skip
     assert cfg.shift == 0
-    config = policy_config("scan", "paper")
+    config = POLICIES.preset("scan", "paper")
     assert config.visual.arch == "resnet18"
     final = train_policy(cfg, config)
     assert load_policy(final, name="scan").config.visual.arch == "resnet18"
 
 
 def test_train_config_defaults_and_errors():
-    mini = TrainPolicyConfig(policy="scan")
-    assert mini.max_frames == 0 and mini.num_envs is None and mini.out == Path("runs/PressButton/policies/scan")
-    assert TrainPolicyConfig(policy="naive_dc").max_frames == 8
-    assert TrainPolicyConfig(task="CloseDrawer", profile="paper").epochs == 160
-    paper = TrainPolicyConfig(profile="paper")
+    mini = TrainPolicyConfig.from_preset(policy="scan")
+    assert mini.max_frames == 0 and mini.num_envs == 0 and mini.out == Path("runs/PressButton/policies/scan")
+    assert TrainPolicyConfig.from_preset(policy="naive_dc").max_frames == 8
+    assert TrainPolicyConfig.from_preset(task="CloseDrawer", profile="paper").epochs == 160
+    paper = TrainPolicyConfig.from_preset(profile="paper")
     assert (paper.lr, paper.weight_decay, paper.shift, paper.max_frames) == (1e-4, 1e-2, 0, 0)
-    assert (mini.rollout_frames, TrainPolicyConfig(policy="naive_dc").rollout_frames, paper.rollout_frames) == ("even", "random", "even")
-    assert policy_config("scan", "mini").proprio and not policy_config("scan", "paper").proprio
-    assert TrainPolicyConfig(composition=[3, 4]).composition == (3, 4)
-    assert (mini.composition, mini.epochs, paper.composition) == ((5, 2), 100, None)
-    assert TrainPolicyConfig(policy="naive_dc").composition == (5, 8)
-    assert policy_config("dct", "mini").subgoal_weight > 0 and policy_config("dct", "paper").subgoal_weight == 0
+    assert (mini.rollout_frames, TrainPolicyConfig.from_preset(policy="naive_dc").rollout_frames, paper.rollout_frames) == ("even", "random", "even")
+    assert POLICIES.preset("scan", "mini").proprio and not POLICIES.preset("scan", "paper").proprio
+    assert TrainPolicyConfig.from_preset(composition=[3, 4]).composition == (3, 4)
+    assert (mini.composition, mini.epochs, paper.composition) == ((5, 2), 100, (5, 10))
+    assert TrainPolicyConfig.from_preset(policy="naive_dc").composition == (5, 8)
+    assert POLICIES.preset("dct", "mini").subgoal_weight > 0 and POLICIES.preset("dct", "paper").subgoal_weight == 0
     with pytest.raises(ValueError, match="composition"):
-        TrainPolicyConfig(composition=(3, 0))
+        TrainPolicyConfig.from_preset(composition=(3, 0))
     with pytest.raises(ValueError, match="demo_frames=1"):
-        policy_config("dct", "mini", demo_frames=1)
-    with pytest.raises(ValueError, match="policy='bc'"):
-        TrainPolicyConfig(policy="bc")
+        POLICIES.preset("dct", "mini", demo_frames=1)
+    demo = TrainPolicyConfig.from_preset(policy="dct", profile="demo")
+    assert (demo.epochs, demo.composition, demo.shift) == (20, (3, 2), 4)
+    assert TrainPolicyConfig.from_preset(policy="naive_dc", profile="demo").composition == (3, 4)
+    assert POLICIES.preset("dct", "demo") == POLICIES.preset("dct", "mini")  # demo trains the mini models
+    with pytest.raises(ValueError, match="profile='huge'"):
+        TrainPolicyConfig.from_preset(profile="huge")
+    with pytest.raises(ValueError, match="unknown policy 'bc'"):
+        TrainPolicyConfig.from_preset(policy="bc")
     with pytest.raises(ValueError, match="max_frames=1"):
-        TrainPolicyConfig(max_frames=1)
+        TrainPolicyConfig.from_preset(max_frames=1)
 
 
 def test_stage_subgoals_are_where_each_stage_ends():
@@ -313,7 +320,7 @@ def test_stage_subgoals_are_where_each_stage_ends():
     assert goals[:, 0].tolist() == [3, 3, 3, 5, 5, 5]
     assert stage_subgoals(tcp[:1], np.array([], dtype=np.int16))[:, 0].tolist() == [0]
     with pytest.raises(ValueError, match="subgoal_weight"):
-        policy_config("naive_dc", "mini", proprio=False, subgoal_weight=1.0)
+        POLICIES.preset("naive_dc", "mini", proprio=False, subgoal_weight=1.0)
 
 
 def test_diagnostic_scripts_run_on_a_collection(collection):
@@ -330,5 +337,5 @@ def test_diagnostic_scripts_run_on_a_collection(collection):
 def test_policy_benchmark_trains_every_mini_policy():
     bench = load_script("bench_policies")
     for name in POLICIES:  # the mini profile's losses need proprio and stage targets in the batch
-        policy = make_policy(name, policy_config(name, "mini"))
+        policy = make_policy(name, POLICIES.preset(name, "mini"))
         assert bench.training_rate(policy, bench.Config(train_frames=2, repeats=1), torch.device("cpu")) > 0

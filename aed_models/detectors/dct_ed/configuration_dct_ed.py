@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
-from aed_models.detectors.base import VisualDetectorConfig, check_profile, positive
+from aed_models.detectors.configuration_base import VisualDetectorConfig, positive
+from aed_models.recipe import check_profile
 
 
 @dataclass
@@ -21,6 +23,8 @@ class DCTEDConfig(VisualDetectorConfig):
         norm_eps: LayerNorm epsilon.
     """
 
+    mini_epochs: ClassVar[int] = 8
+
     num_heads: int = 8
     encoder_layers: int = 2
     decoder_layers: int = 2
@@ -35,12 +39,14 @@ class DCTEDConfig(VisualDetectorConfig):
         if self.encoder_layers < 0:
             raise ValueError(f"encoder_layers={self.encoder_layers}: must be >= 0")
         if self.feature_dim % self.num_heads:
-            raise ValueError(f"feature_dim={self.feature_dim} is not divisible by num_heads={self.num_heads}")
+            raise ValueError(
+                f"feature_dim={self.feature_dim} is not divisible by num_heads={self.num_heads}"
+            )
         if not 0.0 <= self.attn_dropout < 1.0:
             raise ValueError(f"attn_dropout={self.attn_dropout}: must lie in [0, 1)")
 
     @classmethod
-    def for_profile(cls, profile: str) -> DCTEDConfig:
+    def preset(cls, profile: str) -> DCTEDConfig:
         check_profile(profile)
         if profile == "paper":
             return cls(arch="resnet18")

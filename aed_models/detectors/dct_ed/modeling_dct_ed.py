@@ -97,7 +97,6 @@ class DecoderLayer(nn.Module):
 
 
 class DCTED(ErrorDetector):
-    name = "dct_ed"
     requires_policy = False
     output = "probability"
     trains_on = "both"

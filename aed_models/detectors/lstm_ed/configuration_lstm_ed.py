@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
-from aed_models.detectors.base import VisualDetectorConfig, check_profile, positive
+from aed_models.detectors.configuration_base import VisualDetectorConfig, positive
+from aed_models.recipe import check_profile
 
 
 @dataclass
@@ -18,6 +20,8 @@ class LSTMEDConfig(VisualDetectorConfig):
         head_dim: hidden size of the classifier after the LSTM.
     """
 
+    mini_epochs: ClassVar[int] = 30
+
     hidden_dim: int = 256
     num_layers: int = 1
     head_dim: int = 64
@@ -28,6 +32,6 @@ class LSTMEDConfig(VisualDetectorConfig):
             positive(name, getattr(self, name))
 
     @classmethod
-    def for_profile(cls, profile: str) -> LSTMEDConfig:
+    def preset(cls, profile: str) -> LSTMEDConfig:
         check_profile(profile)
         return cls(arch="resnet18") if profile == "paper" else cls(arch="small_cnn", hidden_dim=128)

@@ -18,7 +18,6 @@ from aed_models.nn.recurrent import lstm_step
 
 
 class LSTMED(ErrorDetector):
-    name = "lstm_ed"
     requires_policy = False
     output = "probability"
     trains_on = "both"

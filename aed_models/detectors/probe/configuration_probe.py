@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
-from aed_models.detectors.base import check_profile, nonnegative, positive
+from aed_models.detectors.configuration_base import DetectorConfig, nonnegative, positive
+from aed_models.recipe import check_profile
 
 
 @dataclass
-class ProbeConfig:
+class ProbeConfig(DetectorConfig):
     """PrObe's sizes and objective weights.
 
     The paper gives the architecture and the three objectives but not the weights, margin or
@@ -29,6 +31,8 @@ class ProbeConfig:
         norm_eps: epsilon of the unit-norm and instance norms.
     """
 
+    mini_epochs: ClassVar[int] = 30
+
     history_dim: int = 256
     task_dim: int = 256
     hidden_dim: int = 256
@@ -44,7 +48,15 @@ class ProbeConfig:
     norm_eps: float = 1e-5
 
     def __post_init__(self) -> None:
-        for name in ("history_dim", "task_dim", "hidden_dim", "embed_dim", "triplets_per_rollout", "clip", "norm_eps"):
+        for name in (
+            "history_dim",
+            "task_dim",
+            "hidden_dim",
+            "embed_dim",
+            "triplets_per_rollout",
+            "clip",
+            "norm_eps",
+        ):
             positive(name, getattr(self, name))
         for name in ("lambda_cls", "lambda_pat", "lambda_tem", "margin", "alpha"):
             nonnegative(name, getattr(self, name))
@@ -52,6 +64,6 @@ class ProbeConfig:
             raise ValueError("lambda_cls, lambda_pat and lambda_tem are all 0: nothing to train")
 
     @classmethod
-    def for_profile(cls, profile: str) -> ProbeConfig:
+    def preset(cls, profile: str) -> ProbeConfig:
         check_profile(profile)
         return cls() if profile == "paper" else cls(hidden_dim=128, embed_dim=32)

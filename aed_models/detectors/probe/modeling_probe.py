@@ -30,7 +30,6 @@ def feature_norm(x: torch.Tensor, eps: float) -> torch.Tensor:
 
 
 class Probe(ErrorDetector):
-    name = "probe"
     requires_policy = True
     output = "probability"
     trains_on = "both"

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
-from aed_models.detectors.base import check_profile, nonnegative, positive
+from aed_models.detectors.configuration_base import DetectorConfig, nonnegative, positive
+from aed_models.recipe import check_profile
 
 
 @dataclass
-class RNDOEConfig:
+class RNDOEConfig(DetectorConfig):
     """Random network distillation on the policy's per-frame history features.
 
     Args:
@@ -28,6 +30,8 @@ class RNDOEConfig:
         running_max: score the running maximum over the frames so far (an error, once seen,
             persists: a rollout that has left the successes' states stays flagged).
     """
+
+    mini_epochs: ClassVar[int] = 30
 
     history_dim: int = 256
     hidden_dim: int = 256
@@ -53,6 +57,6 @@ class RNDOEConfig:
         return -(-self.max_steps // self.time_bin) if self.time_bin else 1
 
     @classmethod
-    def for_profile(cls, profile: str) -> RNDOEConfig:
+    def preset(cls, profile: str) -> RNDOEConfig:
         check_profile(profile)
         return cls() if profile == "paper" else cls(hidden_dim=128, out_dim=32)

@@ -9,11 +9,11 @@ Input normalisation (as in Burda et al.'s RND): f_h is unit-normalised, then whi
 dimension by the running mean and variance of the training frames and clipped to +-5. Without
 it the target is near constant: a policy's f_h of different frames point in almost the same
 direction, the random target maps them all to nearly one vector, and the predictor learns that
-vector within a few epochs (training error ~1e-6) and nothing about the frames.
+vector and nothing about the frames.
 
-Score: the raw error alone is a weak failure signal on held-out environments (frame AUROC
-0.43-0.68 on Press Button and Pick & Place): a new environment makes every frame unfamiliar,
-and the error drifts with the step. Three failure-free corrections, each switchable:
+Score: the raw error alone is a weak failure signal on held-out environments: a new
+environment makes every frame unfamiliar, and the error drifts with the step. Three
+failure-free corrections, each switchable:
 
 1. time-varying calibration (as FAIL-Detect's): the error at step t is divided by the running
    mean training error of success frames in t's `time_bin`-step bin (buffers saved with the
@@ -51,7 +51,6 @@ def mlp(in_dim: int, hidden: int, out: int) -> nn.Sequential:
 
 
 class RNDOE(ErrorDetector):
-    name = "rnd_oe"
     requires_policy = True
     output = "distance"
     trains_on = "successes"

@@ -39,7 +39,6 @@ from aed_models.detectors.svdd_ed.configuration_svdd_ed import SVDDEDConfig
 
 
 class SVDDED(ErrorDetector):
-    name = "svdd_ed"
     requires_policy = False
     output = "distance"
     trains_on = "successes"

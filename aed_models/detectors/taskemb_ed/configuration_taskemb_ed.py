@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
-from aed_models.detectors.base import VisualDetectorConfig, check_profile, positive
+from aed_models.detectors.configuration_base import VisualDetectorConfig, positive
+from aed_models.recipe import check_profile
 
 
 @dataclass
@@ -19,6 +21,9 @@ class TaskEmbEDConfig(VisualDetectorConfig):
             that an error persists).
     """
 
+    mini_epochs: ClassVar[int] = 150
+    mini_max_frames: ClassVar[int] = 8
+
     hidden_dims: tuple[int, ...] = (256, 64)
     running_max: bool = True
 
@@ -29,6 +34,10 @@ class TaskEmbEDConfig(VisualDetectorConfig):
             positive(f"hidden_dims[{i}]", h)
 
     @classmethod
-    def for_profile(cls, profile: str) -> TaskEmbEDConfig:
+    def preset(cls, profile: str) -> TaskEmbEDConfig:
         check_profile(profile)
-        return cls(arch="resnet18") if profile == "paper" else cls(arch="small_cnn", hidden_dims=(128, 64))
+        return (
+            cls(arch="resnet18")
+            if profile == "paper"
+            else cls(arch="small_cnn", hidden_dims=(128, 64))
+        )

@@ -26,7 +26,6 @@ from aed_models.losses import masked_bce
 
 
 class TaskEmbED(ErrorDetector):
-    name = "taskemb_ed"
     requires_policy = False
     output = "probability"
     trains_on = "both"

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
-from typing import ClassVar
 
 from aed_models.policies.configuration_base import PolicyConfig
 
@@ -21,14 +21,18 @@ class DCTConfig(PolicyConfig):
         norm_eps: LayerNorm epsilon.
     """
 
-    name: ClassVar[str] = "dct"
-
     encoder_layers: int = 2
     decoder_layers: int = 2
     num_heads: int = 8
     ff_dim: int = 2048
     dropout: float = 0.1
     norm_eps: float = 1e-5
+
+    @classmethod
+    def preset(cls, profile: str) -> DCTConfig:
+        """Under mini and demo, 24 frames per demonstration and a smaller feed-forward."""
+        config = super().preset(profile)
+        return config if profile == "paper" else dataclasses.replace(config, ff_dim=512, demo_frames=24)
 
     def __post_init__(self) -> None:
         super().__post_init__()

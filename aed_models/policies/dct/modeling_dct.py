@@ -29,7 +29,6 @@ class DemoMemory:
 
 
 class DCTPolicy(DCPolicy):
-    name = "dct"
 
     def __init__(self, config: DCTConfig):
         d = config.visual.out_dim

@@ -11,7 +11,6 @@ from aed_models.policies.naive_dc.configuration_naive_dc import NaiveDCConfig
 class NaiveDCPolicy(DCPolicy):
     """f_h[t] = the visual feature of frame t; f_zeta is constant over the rollout (2 x visual dim)."""
 
-    name = "naive_dc"
 
     def __init__(self, config: NaiveDCConfig):
         d = config.visual.out_dim

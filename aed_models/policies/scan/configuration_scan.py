@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
-from typing import ClassVar
 
 from aed_models.policies.configuration_base import PolicyConfig
 
@@ -17,10 +17,14 @@ class SCANConfig(PolicyConfig):
         attention_dim: size of the query / key space of the rollout-demonstration attention.
     """
 
-    name: ClassVar[str] = "scan"
-
     lstm_hidden: int = 256
     attention_dim: int = 256
+
+    @classmethod
+    def preset(cls, profile: str) -> SCANConfig:
+        """Under mini and demo, 24 frames per demonstration."""
+        config = super().preset(profile)
+        return config if profile == "paper" else dataclasses.replace(config, demo_frames=24)
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -28,7 +28,6 @@ class DemoMemory:
 
 
 class SCANPolicy(DCPolicy):
-    name = "scan"
 
     def __init__(self, config: SCANConfig):
         d = config.visual.out_dim

@@ -4,6 +4,7 @@
     runs/<task>/data/<split>-labelled              labelled expert episodes of the novel split
     runs/<task>/policies/<policy>/policy.pt        aed train-policy
     runs/<task>/detectors/<detector>[-<policy>]/   aed train-detector (detector.pt), aed calibrate
+    runs/<task>/features/<policy sha256[:16]>/     frozen-policy features (PrObe, rnd_oe training)
     runs/<task>/rollouts/<policy>/<split>          aed rollout
     runs/<task>/<policy>/eval                      aed evaluate
     runs/report                                    aed report
@@ -30,12 +31,14 @@ class RunLayout:
 
     def detector(self, task: str, detector: str, policy: str) -> Path:
         """Policy-dependent detectors are trained per policy: `<detector>-<policy>`."""
-        from aed_models.detectors import DETECTORS
+        from aed_models.detectors import requires_policy
 
-        if detector not in DETECTORS:
-            raise ValueError(f"unknown detector {detector!r}: known {sorted(DETECTORS)}")
-        suffix = f"-{policy}" if DETECTORS[detector].model_type().requires_policy else ""
+        suffix = f"-{policy}" if requires_policy(detector) else ""
         return Path(self.root) / task / "detectors" / f"{detector}{suffix}" / "detector.pt"
+
+    def features(self, task: str) -> Path:
+        """Cached features of frozen policies, one folder per policy checkpoint."""
+        return Path(self.root) / task / "features"
 
     def rollouts(self, task: str, policy: str, split: str = "novel") -> Path:
         return Path(self.root) / task / "rollouts" / policy / split
