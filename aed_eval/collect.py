@@ -8,12 +8,11 @@ For a task and split, in each chosen environment of the catalogue:
 - `agent_failure`: the agent's appearance, the expert intervened at the critical moment,
   the task's error kinds rotated so that every kind is represented evenly.
 
-Work is cut into shards of at most `shard_size` episodes of one (environment, role); each is
-written atomically (see `aed_tasks.trajectory`) and its seeds derive only from
-(seed, task, split, environment, role, episode index, attempt), so the result is the same
-whatever the number of workers, and an interrupted run resumes by redoing only the shards
-that were never committed. Workers are local processes, or Ray actors on a cluster (`ray`
-extra; the output folder must then be on a filesystem every node sees).
+Work is cut into shards of at most `shard_size` episodes of one (environment, role), recorded
+by `aed_eval.producer` (atomic shards, resumable, worker-count independent); seeds derive only
+from (seed, task, split, environment, role, episode index, attempt). Workers are local
+processes, or Ray actors on a cluster (`ray` extra; the output folder must then be on a
+filesystem every node sees).
 """
 
 from __future__ import annotations
@@ -23,16 +22,15 @@ import logging
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
-from functools import partial
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import tyro
 
 from aed_eval.checks import task_class
-from aed_eval.executors import execute
 from aed_eval.presets import protocol
+from aed_eval.producer import EpisodeRunner, ProductionSummary, ShardResult, produce
 from aed_models.layout import RunLayout
 from aed_models.recipe import Profile, check_profile
 from aed_tasks import trajectory
@@ -236,23 +234,17 @@ class CollectError(ValueError):
     """The expert could not produce a wanted episode within `max_attempts`, or needed too many retries."""
 
 
-@dataclass
-class ShardResult:
-    stem: str
-    episodes: int
-    steps: int
-    attempts: int
-    seconds: float
-
-
-class ShardRunner:
-    """Runs shards in one process, keeping one env per appearance (gym.make costs seconds)."""
+class ExpertRunner(EpisodeRunner):
+    """The scripted expert's shards in one process, one env per appearance (gym.make costs seconds)."""
 
     def __init__(self, cfg: CollectConfig):
-        self.cfg = cfg
+        super().__init__(cfg)
         self._envs: dict[bool, Any] = {}
 
-    def env(self, demonstrator: bool) -> Any:
+    def env(self, shard: Shard) -> Any:
+        return self.env_for(shard.demonstrator)
+
+    def env_for(self, demonstrator: bool) -> Any:
         if demonstrator not in self._envs:
             import gymnasium as gym
 
@@ -266,40 +258,24 @@ class ShardRunner:
             self._envs[demonstrator] = trajectory.make_step_recorder(env, self.cfg.record_env_states)
         return self._envs[demonstrator]
 
+    def compression(self) -> trajectory.Compression:
+        return trajectory.Compression(self.cfg.compression, self.cfg.compression_level)
+
     def close(self) -> None:
         for env in self._envs.values():
             env.close()
         self._envs.clear()
 
-    def run(self, shard: Shard, tick: Callable[[int], None] | None = None, out: Path | None = None) -> ShardResult:
-        """Record the shard's episodes into `<out>/<stem>.h5.tmp` (default: the config's), then commit it."""
-        out = Path(out if out is not None else self.cfg.out)
-        start = time.perf_counter()
-        env = self.env(shard.demonstrator)
-        compression = trajectory.Compression(self.cfg.compression, self.cfg.compression_level)
-        steps = attempts = 0
-        with trajectory.ShardWriter(Path(out) / f"{shard.stem}.h5", compression) as writer:
-            for k in shard.indices():
-                episode, recorded, rejected = self.episode(env, shard, k)
-                attempt = len(rejected)
-                writer.add(episode, recorded, index=k, attempt=attempt, rejected=rejected, shard=shard.stem)
-                steps += len(episode)
-                attempts += attempt + 1
-                if tick is not None:
-                    tick(1)
-            writer.commit(trajectory.env_info(env), shard.to_dict())
-        return ShardResult(shard.stem, shard.count, steps, attempts, time.perf_counter() - start)
-
-    def episode(self, env: Any, shard: Shard, k: int) -> tuple[Any, trajectory.RecordedSteps, list[str]]:
+    def episode(self, shard: Shard, k: int) -> tuple[Any, trajectory.RecordedSteps, dict[str, Any]]:
         """One accepted episode and why earlier tries were rejected: a retry with the next seed
         when the expert cannot plan it or its outcome is not the role's (a clean expert that
         failed, an error that did not fail in its named way, a script cut by the time limit)."""
         from aed_tasks.expert import ErrorSpec, solve
 
-        base = env.unwrapped
+        env = self.env(shard)
         error = None
         if shard.role == "agent_failure":
-            error = ErrorSpec(error_kind_for(base.error_kinds, shard.env_index, k))
+            error = ErrorSpec(error_kind_for(env.unwrapped.error_kinds, shard.env_index, k))
         problem, rejected = "", []
         for attempt in range(self.cfg.max_attempts):
             seed = episode_seed(self.cfg.seed, shard.task, shard.split, shard.env_index, shard.group, k, attempt)
@@ -313,7 +289,7 @@ class ShardRunner:
                 episode.depth.clear()
                 problem = _rejection(episode, shard)
                 if not problem:
-                    return episode, recorded, rejected
+                    return episode, recorded, {"index": k, "attempt": attempt, "rejected": rejected, "shard": shard.stem}
             rejected.append(problem)
             logger.warning("%s episode %d attempt %d (seed %d) rejected: %s", shard.stem, k, attempt, seed, problem)
         raise CollectError(f"{shard.stem}: episode {k} failed {self.cfg.max_attempts} attempts; last: {problem}")
@@ -341,94 +317,22 @@ def _rejection(episode: Any, shard: Shard) -> str:
 
 
 # --- the whole collection ----------------------------------------------------------------------
-@dataclass
-class CollectSummary:
-    out: Path
-    planned: int  # shards
-    skipped: int  # already committed
-    results: list[ShardResult] = field(default_factory=list)
-
-    @property
-    def episodes(self) -> int:
-        return sum(r.episodes for r in self.results)
-
-
-def prepare_folder(cfg: CollectConfig, shards: list[Shard]) -> list[Shard]:
-    """Check the folder (manifest, every committed shard) and return the shards still to run.
-
-    A corrupt or foreign file stops here with its name. A committed shard whose content
-    differs from the plan (e.g. another shard size) is an error too, never overwritten.
-    """
-    out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
-    manifest = trajectory.read_manifest(out)
-    if manifest is not None:
-        old = manifest.get("identity", {})
-        for key, value in cfg.identity().items():
-            if old.get(key) != value:
-                raise trajectory.CollectionError(
-                    out / trajectory.MANIFEST, f"was collected with {key}={old.get(key)!r}, this run asks {value!r}; "
-                    "use another --out or the same setting")  # fmt: skip
-    collection = trajectory.scan_collection(out, check="full")  # every shard, its sha256 too, before any write
-    trajectory.write_json_atomic(out / trajectory.MANIFEST, {
-        "format": trajectory.FORMAT, "identity": cfg.identity(), "config": cfg.to_dict(),
-    })  # fmt: skip
-    done = {s.json_path.stem: s for s in collection.shards}
-    planned = {s.stem for s in shards}
-    todo = []
-    for shard in shards:
-        info = done.get(shard.stem)
-        if info is None:
-            todo.append(shard)
-        elif info.shard != shard.to_dict():
-            raise trajectory.CollectionError(
-                info.json_path, f"holds shard {info.shard}, this run plans {shard.to_dict()}; delete it or "
-                "keep the earlier counts")  # fmt: skip
-    for leftover in collection.temporaries + collection.uncommitted:
-        stem = leftover.name.split(".")[0]
-        if stem in planned:
-            logger.info("removing %s (left by an interrupted run; its shard is redone)", leftover.name)
-            leftover.unlink()
-    extra = sorted(set(done) - planned)
-    if extra:
-        logger.info("%d committed shard(s) in %s are outside this plan and kept", len(extra), out)
-    return todo
-
-
 def run_collection(
     cfg: CollectConfig,
     on_shard_done: Callable[[ShardResult], None] | None = None,
-    runner: ShardRunner | None = None,
-) -> CollectSummary:
+    runner: ExpertRunner | None = None,
+) -> ProductionSummary:
     """Record every planned shard that is not committed yet (resume = run again).
 
     `on_shard_done` is called after each commit; `runner` (workers=1 only) reuses the envs
     of an earlier call instead of making new ones.
     """
-    from tqdm.auto import tqdm
-
-    shards = plan_shards(cfg)
-    todo = prepare_folder(cfg, shards)
-    summary = CollectSummary(Path(cfg.out), len(shards), len(shards) - len(todo))
-    total = sum(s.count for s in todo)
-    logger.info("%s-%s: %d shards planned, %d already committed, %d episodes to record in %s",
-                cfg.task, cfg.split, len(shards), summary.skipped, total, cfg.out)  # fmt: skip
-
-    def done(result: ShardResult) -> None:
-        summary.results.append(result)
-        if on_shard_done is not None:
-            on_shard_done(result)
-
-    with tqdm(total=total, unit="ep", desc=f"collect {cfg.task}-{cfg.split}", disable=not cfg.progress,
-              dynamic_ncols=True) as bar:  # fmt: skip
-        if runner is not None and _env_key(runner.cfg) != _env_key(cfg):
-            raise ValueError(f"runner made for {_env_key(runner.cfg)}, this collection needs {_env_key(cfg)}")
-        if runner is not None:
-            runner.cfg = cfg
-        execute(
-            todo, partial(ShardRunner, cfg), on_done=done, workers=cfg.workers, executor=cfg.executor,
-            ray_address=cfg.ray_address, progress=bar, runner=runner,
-        )  # fmt: skip
+    if runner is not None and _env_key(runner.cfg) != _env_key(cfg):
+        raise ValueError(f"runner made for {_env_key(runner.cfg)}, this collection needs {_env_key(cfg)}")
+    if runner is not None:
+        runner.cfg = cfg
+    summary = produce(cfg, plan_shards(cfg), ExpertRunner, f"collect {cfg.task}-{cfg.split}", on_done=on_shard_done,
+                      runner=runner)  # fmt: skip
     check_retry_rate(Path(cfg.out), cfg.max_retry_rate)
     return summary
 
@@ -463,7 +367,6 @@ def collect(cfg: Annotated[CollectConfig, tyro.conf.arg(name="")]) -> int:
     start = time.perf_counter()
     summary = run_collection(cfg)
     seconds = time.perf_counter() - start
-    steps = sum(r.steps for r in summary.results)
     print(f"{summary.out}: {summary.planned} shards ({summary.skipped} already there), "
-          f"recorded {summary.episodes} episodes / {steps} steps in {seconds:.1f} s")  # fmt: skip
+          f"recorded {summary.episodes} episodes / {summary.steps} steps in {seconds:.1f} s")  # fmt: skip
     return 0

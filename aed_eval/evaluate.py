@@ -157,19 +157,14 @@ def curve_metrics(scores: list[np.ndarray], failed: np.ndarray, output: str, cfg
 def labelled_metrics(scores: list[np.ndarray], refs: list[trajectory.EpisodeRef], thresholds: dict[str, float],
                      cfg: EvaluateConfig) -> dict[str, Any]:  # fmt: skip
     """Frame-level AUROC (interval over episodes) and, at each threshold, detection delays."""
-    labels = []
-    for ref, s in zip(refs, scores, strict=True):
-        frame = np.zeros(len(s), dtype=bool)
-        if ref.error_onset is not None:
-            frame[int(ref.error_onset) + 1 :] = True  # frame t + 1 follows action t
-        labels.append(frame)
+    labels = [ref.frame_labels()[: len(s)] for ref, s in zip(refs, scores, strict=True)]
     failures = np.asarray([r.error_onset is not None for r in refs])
     interval = metrics.stratified_bootstrap(
         lambda idx: metrics.frame_auroc([scores[i] for i in idx], [labels[i] for i in idx]),
         [np.flatnonzero(failures), np.flatnonzero(~failures)], cfg.bootstrap, seed=cfg.seed)  # fmt: skip
     result: dict[str, Any] = {"frame_auroc": metrics.frame_auroc(scores, labels), "frame_auroc_interval": interval,
                               "episodes": len(refs), "delays": {}}  # fmt: skip
-    onsets = [(s, r.error_onset + 1) for s, r in zip(scores, refs, strict=True) if r.error_onset is not None]
+    onsets = [(s, r.onset_frame) for s, r in zip(scores, refs, strict=True) if r.onset_frame is not None]
     if onsets:
         for key, threshold in thresholds.items():
             result["delays"][key] = metrics.detection_delays([s for s, _ in onsets], [o for _, o in onsets], threshold, cfg.window)
@@ -258,7 +253,7 @@ def write_results(out: Path, results: dict[str, Any], scored: dict[str, tuple[li
     trajectory.write_json_atomic(out / "scores.json", {
         group: {
             "episodes": [{"env_index": r.env_index, "seed": r.seed, "success": r.success, "role": r.role,
-                          "onset_frame": None if r.error_onset is None else int(r.error_onset) + 1} for r in refs],
+                          "onset_frame": r.onset_frame} for r in refs],
             "scores": {name: [np.round(s, 6).tolist() for s in values] for name, values in scores.items()},
         }
         for group, (refs, scores) in scored.items()

@@ -4,7 +4,7 @@
 independent *jobs* whose results do not depend on where or in which order they run. Each
 worker keeps one *runner* (its envs and models: `gym.make` and loading a checkpoint cost
 seconds) and feeds it jobs. A runner is made by a picklable factory, e.g.
-`functools.partial(ShardRunner, cfg)`, so the same factory serves every executor:
+`functools.partial(ExpertRunner, cfg)`, so the same factory serves every executor:
 
 - inline (`workers=1`): in this process, optionally reusing a runner the caller already has;
 - local: a pool of fresh (spawned) interpreters, no forked renderer state;

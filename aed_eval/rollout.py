@@ -13,19 +13,15 @@ evaluation convention (terminations ignored, `success_once`). A rollout's length
 nothing of its outcome, so a detector cannot score well by knowing how long a rollout ran.
 The first success and irrecoverable-failure steps are stored with each rollout, so the
 paper's ending (stop at the first success) is a view of the same rollouts (`paper_ending`);
-`--ending success` records that ending instead. Work is cut into shards of (environment,
-index range) exactly like `aed collect`: seeds derive from the shard's identity, so any number of workers (or Ray)
-gives the same rollouts, and a killed run re-run with the same arguments redoes only the
-shards that were never committed.
+`--ending success` records that ending instead. Shards of (environment, index range) are
+recorded by `aed_eval.producer`, as `aed collect`'s are.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
-from functools import partial
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -33,10 +29,10 @@ import numpy as np
 import tyro
 
 from aed_eval.checks import task_class
-from aed_eval.collect import episode_seed, plain_value, prepare_folder
-from aed_eval.executors import execute
+from aed_eval.collect import episode_seed, plain_value
 from aed_eval.metrics import rate_interval
 from aed_eval.presets import protocol
+from aed_eval.producer import EpisodeRunner, ProductionSummary, produce
 from aed_eval.scoring import Demonstrations
 from aed_models.layout import RunLayout
 from aed_models.recipe import Profile, check_profile
@@ -160,6 +156,9 @@ class RolloutShard:
     def stem(self) -> str:
         return f"{ROLE}_env{self.env_index:03d}_{self.start:04d}"
 
+    def indices(self) -> range:
+        return range(self.start, self.start + self.count)
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
@@ -180,16 +179,7 @@ def plan_shards(cfg: RolloutConfig, available: list[int]) -> list[RolloutShard]:
     ]
 
 
-@dataclass
-class RolloutResult:
-    stem: str
-    episodes: int
-    steps: int
-    successes: int
-    seconds: float
-
-
-class RolloutRunner:
+class RolloutRunner(EpisodeRunner):
     """Runs rollout shards in one process: one env, one policy, the demos of each environment.
 
     `policy` replaces the checkpoint's policy (anything with `reset(demos)` and `act(obs)`;
@@ -202,54 +192,51 @@ class RolloutRunner:
         import aed_tasks
         from aed_models.policies import load_policy
 
-        self.cfg = cfg if cfg.policy_sha256 else cfg.with_checkpoint_hash()
+        super().__init__(cfg if cfg.policy_sha256 else cfg.with_checkpoint_hash())
         self.policy = load_policy(cfg.checkpoint).eval() if policy is None else policy
         env = gym.make(aed_tasks.env_id(cfg.task, cfg.split), obs_mode="rgbd", max_episode_steps=cfg.horizon,
                        terminate_on_success=False)  # fmt: skip
-        self.env = trajectory.make_step_recorder(env, record_env_states=True)
+        self._env = trajectory.make_step_recorder(env, record_env_states=True)
         self.demos = Demonstrations(Path(cfg.demos), cfg.split, cfg.num_demos)
 
+    def env(self, shard: RolloutShard | None = None) -> Any:
+        return self._env
+
     def close(self) -> None:
-        self.env.close()
+        self._env.close()
 
-    def run(self, shard: RolloutShard, tick: Callable[[int], None] | None = None) -> RolloutResult:
-        start = time.perf_counter()
-        steps = successes = 0
-        with trajectory.ShardWriter(Path(self.cfg.out) / f"{shard.stem}.h5") as writer:
-            for k in range(shard.start, shard.start + shard.count):
-                episode = self.episode(shard, k)
-                writer.add(episode, self.env.take(), role=ROLE, policy=self.cfg.policy,
-                           policy_sha256=self.cfg.policy_sha256, labels_known=False, index=k, ending=self.cfg.ending,
-                           success_step=first_step(episode.success), fail_step=first_step(episode.fail))  # fmt: skip
-                steps += len(episode)
-                successes += episode.succeeded
-                if tick is not None:
-                    tick(1)
-            writer.commit(trajectory.env_info(self.env), shard.to_dict(), source_type="policy",
-                          source_desc=f"AED policy {self.cfg.policy} ({self.cfg.policy_sha256[:12]}), aed_eval.rollout")  # fmt: skip
-        return RolloutResult(shard.stem, shard.count, steps, successes, time.perf_counter() - start)
+    def source(self) -> dict[str, Any]:
+        return {"source_type": "policy",
+                "source_desc": f"AED policy {self.cfg.policy} ({self.cfg.policy_sha256[:12]}), aed_eval.rollout"}  # fmt: skip
 
-    def episode(self, shard: RolloutShard, k: int) -> Any:
+    def episode(self, shard: RolloutShard, k: int) -> tuple[Any, trajectory.RecordedSteps, dict[str, Any]]:
+        episode = self.rollout(shard, k)
+        extra = {"role": ROLE, "policy": self.cfg.policy, "policy_sha256": self.cfg.policy_sha256, "labels_known": False,
+                 "index": k, "ending": self.cfg.ending, "success_step": first_step(episode.success),
+                 "fail_step": first_step(episode.fail)}  # fmt: skip
+        return episode, self._env.take(), extra
+
+    def rollout(self, shard: RolloutShard, k: int) -> Any:
         """One rollout: `horizon` steps, or (the paper's ending) until success or irrecoverable failure."""
         import torch
 
         from aed_tasks.episode import Episode
 
         seed = episode_seed(self.cfg.seed, shard.task, shard.split, shard.env_index, ROLE, k, 0)
-        obs, _ = self.env.reset(seed=seed, options={"env_index": shard.env_index})
+        obs, _ = self._env.reset(seed=seed, options={"env_index": shard.env_index})
         with torch.no_grad():
             self.policy.reset(self.demos[shard.env_index])
             actions, success, fail, stage = [], [], [], []
             for _ in range(self.cfg.horizon):
                 action = self.policy.act(obs)
-                obs, _, _, _, info = self.env.step(action)  # terminations ignored: success is latched
+                obs, _, _, _, info = self._env.step(action)  # terminations ignored: success is latched
                 actions.append(np.asarray(action, dtype=np.float32))
                 success.append(_flag(info["success"]))
                 fail.append(_flag(info["fail"]))
                 stage.append(int(np.asarray(info["stage"]).reshape(-1)[0]))
                 if self.cfg.ending == "success" and (success[-1] or fail[-1]):
                     break
-        base = self.env.unwrapped
+        base = self._env.unwrapped
         return Episode(
             env_id=base.spec.id, task=shard.task, split=shard.split, env_index=base.env_index, seed=seed,
             demonstrator=False, control_mode=base.control_mode, actions=np.asarray(actions).reshape(-1, 4),
@@ -278,28 +265,9 @@ def paper_ending(entry: dict[str, Any]) -> tuple[int, bool]:
     return actions, success is not None and (fail is None or success <= fail)
 
 
-@dataclass
-class RolloutSummary:
-    out: Path
-    planned: int
-    skipped: int
-    results: list[RolloutResult] = field(default_factory=list)
-
-    @property
-    def episodes(self) -> int:
-        return sum(r.episodes for r in self.results)
-
-    @property
-    def successes(self) -> int:
-        return sum(r.successes for r in self.results)
-
-
-def run_rollouts(cfg: RolloutConfig) -> RolloutSummary:
+def run_rollouts(cfg: RolloutConfig) -> ProductionSummary:
     """Run every planned rollout shard that is not committed yet (resume = run again)."""
-    from tqdm.auto import tqdm
-
     cfg = cfg.with_checkpoint_hash()
-
     available = Demonstrations(Path(cfg.demos), cfg.split, cfg.num_demos).envs()
     if not available:
         raise FileNotFoundError(f"{cfg.demos}: no {cfg.split} demonstrations; collect them with "
@@ -308,17 +276,8 @@ def run_rollouts(cfg: RolloutConfig) -> RolloutSummary:
         available = [e for e in available if e not in policy_train_envs(Path(cfg.checkpoint))]
         if not available:
             raise ValueError(f"{cfg.demos}: every base environment with demonstrations trained the policy; collect more")
-    shards = plan_shards(cfg, available)
-    todo = prepare_folder(cfg, shards)
-    summary = RolloutSummary(Path(cfg.out), len(shards), len(shards) - len(todo))
-    total = sum(s.count for s in todo)
-    logger.info("%s %s-%s: %d shards planned, %d already committed, %d rollouts to run in %s",
-                cfg.policy, cfg.task, cfg.split, len(shards), summary.skipped, total, cfg.out)  # fmt: skip
-    with tqdm(total=total, unit="ep", desc=f"rollout {cfg.policy} {cfg.task}-{cfg.split}",
-              disable=not cfg.progress, dynamic_ncols=True) as bar:  # fmt: skip
-        execute(todo, partial(RolloutRunner, cfg), on_done=summary.results.append, workers=cfg.workers,
-                executor=cfg.executor, ray_address=cfg.ray_address, progress=bar)  # fmt: skip
-    return summary
+    desc = f"rollout {cfg.policy} {cfg.task}-{cfg.split}"
+    return produce(cfg, plan_shards(cfg, available), RolloutRunner, desc)
 
 
 @dataclass

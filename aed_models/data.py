@@ -41,6 +41,7 @@ from torch.utils.data import Dataset, Sampler
 from aed_models.augment import RolloutAugment
 from aed_models.recipe import COMPOSITIONS, Composition
 from aed_tasks import trajectory
+from aed_tasks.episode import frame_labels
 
 logger = logging.getLogger(__name__)
 
@@ -156,7 +157,7 @@ class EpisodeReader:
         unique, inverse = np.unique(indices, return_inverse=True)
         rgb = _read_rows(images["rgb"], unique)[inverse]
         depth = _read_rows(images["depth"], unique)[inverse]
-        labels = np.concatenate([[0], group["error_label"][()]]).astype(np.float32)[indices]
+        labels = frame_labels(group["error_label"][()]).astype(np.float32)[indices]
         actions = group["actions"][()].astype(np.float32)
         actions = np.concatenate([actions, np.zeros((1, actions.shape[1]), np.float32)])[indices]
         proprio = subgoal = None

@@ -54,11 +54,31 @@ class Episode:
         return bool(len(self.fail) and self.fail[-1])
 
     def frame_labels(self) -> np.ndarray:
-        """(T + 1,) labels of the frames: the reset frame is normal, frame t + 1 follows action t."""
-        return np.concatenate([[0], self.error_label]).astype(np.uint8)
+        return frame_labels(self.error_label)
 
     @property
     def role(self) -> str:
         if self.demonstrator:
             return "demo"
         return "agent_failure" if self.error_kind is not None else "agent_success"
+
+
+# --- the frame-label rule (one place) ------------------------------------------------------------
+def frame_labels(action_labels: np.ndarray) -> np.ndarray:
+    """(T,) labels of the actions -> (T + 1,) labels of the frames: the reset frame is normal,
+    frame t + 1 is the one action t led to."""
+    return np.concatenate([[0], np.asarray(action_labels)]).astype(np.uint8)
+
+
+def onset_frame(error_onset: int | None) -> int | None:
+    """The first error frame of an episode whose error starts at action `error_onset`."""
+    return None if error_onset is None else int(error_onset) + 1
+
+
+def frame_labels_from_onset(num_frames: int, error_onset: int | None) -> np.ndarray:
+    """(num_frames,) bool labels of an episode known only by its error onset (None: no error)."""
+    labels = np.zeros(num_frames, dtype=bool)
+    first = onset_frame(error_onset)
+    if first is not None:
+        labels[first:] = True
+    return labels

@@ -35,7 +35,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from aed_tasks.episode import ROLES, Episode
+from aed_tasks.episode import ROLES, Episode, frame_labels_from_onset, onset_frame
 
 logger = logging.getLogger(__name__)
 
@@ -358,6 +358,14 @@ class EpisodeRef:
     def num_frames(self) -> int:
         return self.length + 1
 
+    @property
+    def onset_frame(self) -> int | None:
+        return onset_frame(self.error_onset)
+
+    def frame_labels(self) -> np.ndarray:
+        """(T + 1,) bool: which frames follow the error's onset."""
+        return frame_labels_from_onset(self.num_frames, self.error_onset)
+
 
 @dataclass
 class ShardInfo:
@@ -489,11 +497,6 @@ def read_frames(h5: Any, traj: str, camera: str = "front") -> tuple[np.ndarray, 
     """(T + 1, H, W, 3) uint8 RGB and (T + 1, H, W, 1) int16 depth (mm) of one camera."""
     data = h5[f"{traj}/obs/sensor_data/{camera}"]
     return data["rgb"][()], data["depth"][()]
-
-
-def frame_labels(h5: Any, traj: str) -> np.ndarray:
-    """(T + 1,) labels of the frames: the reset frame is normal, frame t + 1 follows action t."""
-    return np.concatenate([[0], h5[f"{traj}/error_label"][()]]).astype(np.uint8)
 
 
 def read_manifest(root: Path) -> dict[str, Any] | None:

@@ -25,7 +25,7 @@ from typing import Literal
 import h5py
 import tyro
 
-from aed_eval.collect import CollectConfig, Shard, ShardRunner
+from aed_eval.collect import CollectConfig, ExpertRunner, Shard
 from aed_eval.logs import setup_logging
 
 logger = logging.getLogger("bench_collect")
@@ -77,7 +77,7 @@ def bench(cfg: Config) -> dict:
         task=cfg.task, split=cfg.split, envs=(0,), num_demos=0, num_successes=0, num_failures=0,
         compression=cfg.compression, compression_level=cfg.compression_level, progress=False,
     )  # fmt: skip
-    runner = ShardRunner(collect_cfg)
+    runner = ExpertRunner(collect_cfg)
     runs: list[Run] = []
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(cfg.runs + 1):  # run 0 warms up (gym.make, first planner, caches)
@@ -89,7 +89,7 @@ def bench(cfg: Config) -> dict:
                 result = runner.run(shard, out=Path(tmp))
                 h5_path = Path(tmp) / f"{shard.stem}.h5"
                 collect_s += result.seconds
-                raw_s += raw_replay(runner.env(shard.demonstrator).env, h5_path)
+                raw_s += raw_replay(runner.env_for(shard.demonstrator).env, h5_path)
                 steps += result.steps
                 frames += result.steps + result.episodes
                 size += h5_path.stat().st_size + h5_path.with_suffix(".json").stat().st_size

@@ -55,16 +55,6 @@ class Config:
     """Score models on environments they trained on (a diagnostic, marked in the output)."""
 
 
-def frame_labels(refs: list[trajectory.EpisodeRef]) -> list[np.ndarray]:
-    labels = []
-    for ref in refs:
-        frame = np.zeros(ref.num_frames, dtype=bool)
-        if ref.error_onset is not None:
-            frame[int(ref.error_onset) + 1 :] = True  # frame t + 1 follows action t
-        labels.append(frame)
-    return labels
-
-
 def main(cfg: Config) -> dict:
     layout = RunLayout(cfg.runs)
     data = Path(cfg.data or layout.data(cfg.task, "base"))
@@ -72,7 +62,7 @@ def main(cfg: Config) -> dict:
             if e.env_index in cfg.envs and e.role in ("agent_success", "agent_failure")]  # fmt: skip
     if not refs:
         raise SystemExit(f"{data}: no agent episodes in environments {cfg.envs}")
-    labels = frame_labels(refs)
+    labels = [ref.frame_labels() for ref in refs]
     demos = Demonstrations(data, "base", cfg.num_demos)
     results: dict = {"task": cfg.task, "data": str(data), "envs": list(cfg.envs), "episodes": len(refs),
                      "failures": sum(r.error_onset is not None for r in refs), "auroc": {}, "time_matched": {}}  # fmt: skip
