@@ -9,7 +9,6 @@ of a wall of missing-key messages.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import tempfile
 from dataclasses import dataclass, field
@@ -36,11 +35,9 @@ class Checkpoint:
 
 
 def file_sha256(path: Path | str) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
+    from aed_tasks.trajectory import sha256
+
+    return sha256(Path(path))
 
 
 def save_checkpoint(

@@ -15,6 +15,7 @@ _LAZY = {
     "build_visual_head": "aed_models.nn.encoders",
     "encode_frames": "aed_models.nn.encoders",
     "lstm_step": "aed_models.nn.recurrent",
+    "mlp": "aed_models.nn.mlp",
 }
 
 __all__ = ["VisualHeadConfig", *_LAZY]

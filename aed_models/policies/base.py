@@ -30,6 +30,7 @@ from torch import nn
 
 from aed_models.data import PROPRIO_DIM, proprio_from_obs, to_frames
 from aed_models.nn.encoders import build_visual_head, encode_frames
+from aed_models.nn.mlp import mlp
 from aed_models.policies.configuration_base import PolicyConfig
 
 logger = logging.getLogger(__name__)
@@ -44,13 +45,6 @@ class PolicyFeatures:
 
     history: torch.Tensor
     task: torch.Tensor
-
-
-def mlp(sizes: list[int]) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for a, b in zip(sizes[:-1], sizes[1:], strict=True):
-        layers += [nn.Linear(a, b), nn.ReLU()]
-    return nn.Sequential(*layers)
 
 
 class Actor(nn.Module):

@@ -14,6 +14,7 @@ from torch import nn
 from aed_models.detectors.base import Batch, ErrorDetector, check_frame, rollout_mask
 from aed_models.detectors.lstm_ed.configuration_lstm_ed import LSTMEDConfig
 from aed_models.losses import masked_bce
+from aed_models.nn.mlp import mlp
 from aed_models.nn.recurrent import lstm_step
 
 
@@ -29,7 +30,7 @@ class LSTMED(ErrorDetector):
         super().__init__(config)
         self.encoder = build_visual_head(config.visual_head_config())
         self.lstm = nn.LSTM(config.feature_dim, config.hidden_dim, config.num_layers, batch_first=True)
-        self.classifier = nn.Sequential(nn.Linear(config.hidden_dim, config.head_dim), nn.ReLU(), nn.Linear(config.head_dim, 1))
+        self.classifier = mlp([config.hidden_dim, config.head_dim], out_dim=1)
         self._state: tuple[torch.Tensor, torch.Tensor] | None = None
         self._started = False
 

@@ -33,7 +33,6 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from torch import nn
 
 from aed_models.detectors.base import (
     Batch,
@@ -44,10 +43,7 @@ from aed_models.detectors.base import (
     steps_of,
 )
 from aed_models.detectors.rnd_oe.configuration_rnd_oe import RNDOEConfig
-
-
-def mlp(in_dim: int, hidden: int, out: int) -> nn.Sequential:
-    return nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, out))
+from aed_models.nn.mlp import mlp
 
 
 class RNDOE(ErrorDetector):
@@ -59,9 +55,9 @@ class RNDOE(ErrorDetector):
         config = config or RNDOEConfig()
         super().__init__(config)
         c = config
-        self.target = mlp(c.history_dim, c.hidden_dim, c.out_dim)
+        self.target = mlp([c.history_dim, c.hidden_dim, c.hidden_dim], c.out_dim)
         self.target.requires_grad_(False)
-        self.predictor = mlp(c.history_dim, c.hidden_dim, c.out_dim)
+        self.predictor = mlp([c.history_dim, c.hidden_dim, c.hidden_dim], c.out_dim)
         # bias-corrected running means of the training error (as Adam's moments): ema / weight,
         # over all success frames and per time bin of success frames
         self.register_buffer("error_ema", torch.zeros(()))

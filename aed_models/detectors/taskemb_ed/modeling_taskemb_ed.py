@@ -11,7 +11,6 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from torch import nn
 
 from aed_models.detectors.base import (
     Batch,
@@ -23,6 +22,7 @@ from aed_models.detectors.base import (
 )
 from aed_models.detectors.taskemb_ed.configuration_taskemb_ed import TaskEmbEDConfig
 from aed_models.losses import masked_bce
+from aed_models.nn.mlp import mlp
 
 
 class TaskEmbED(ErrorDetector):
@@ -36,12 +36,7 @@ class TaskEmbED(ErrorDetector):
         config = config or TaskEmbEDConfig()
         super().__init__(config)
         self.encoder = build_visual_head(config.visual_head_config())
-        layers: list[nn.Module] = []
-        width = 3 * config.feature_dim
-        for h in config.hidden_dims:
-            layers += [nn.Linear(width, h), nn.ReLU()]
-            width = h
-        self.classifier = nn.Sequential(*layers, nn.Linear(width, 1))
+        self.classifier = mlp([3 * config.feature_dim, *config.hidden_dims], out_dim=1)
         self._task: torch.Tensor | None = None
         self._max = 0.0
 
