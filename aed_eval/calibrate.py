@@ -62,7 +62,8 @@ class CalibrateConfig:
     rollouts: Path | None = None
     """The policy's base-split rollouts (default: runs/<task>/rollouts/<policy>/base)."""
     data: Path | None = None
-    """Base collection: the demonstrations, and the expert successes (default: runs/<task>/data/base)."""
+    """Base collection: the demonstrations, and the expert successes
+    (default: runs/<task>/data/base)."""
     envs: tuple[int, ...] = ()
     """Calibration environments (default: every one of the source that no model trained on)."""
     num_demos: int = 5
@@ -101,7 +102,9 @@ def load_policy_checked(path: Path) -> tuple[Any, str]:
     return policy, policy.checkpoint_sha256
 
 
-def read_calibration(detector_path: Path, detector_sha256: str, source: str = "policy") -> dict[str, Any] | None:
+def read_calibration(
+    detector_path: Path, detector_sha256: str, source: str = "policy"
+) -> dict[str, Any] | None:
     """The stored calibration of a detector from `source`, if any and made for this checkpoint."""
     path = Path(detector_path).parent / FILES[source]
     if not path.exists():
@@ -109,11 +112,18 @@ def read_calibration(detector_path: Path, detector_sha256: str, source: str = "p
     try:
         body = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path}: corrupt calibration ({e}); delete it and re-run aed calibrate") from e
+        raise ValueError(
+            f"{path}: corrupt calibration ({e}); delete it and re-run aed calibrate"
+        ) from e
     if not isinstance(body, dict) or not isinstance(body.get("thresholds"), dict):
-        raise ValueError(f"{path}: not an `aed calibrate` file (no thresholds); delete it and re-run aed calibrate")
+        raise ValueError(
+            f"{path}: not an `aed calibrate` file (no thresholds); "
+            "delete it and re-run aed calibrate"
+        )
     if body.get("detector_sha256") != detector_sha256:
-        logger.warning("%s: made for another checkpoint of the detector; ignored (re-run aed calibrate)", path)
+        logger.warning(
+            "%s: made for another checkpoint of the detector; ignored (re-run aed calibrate)", path
+        )
         return None
     return body
 
@@ -125,12 +135,17 @@ def threshold_at(calibration: dict[str, Any], alpha: float) -> float | None:
 
 
 def calibration_episodes(cfg: CalibrateConfig, policy_sha: str) -> list[trajectory.EpisodeRef]:
-    """The source's episodes: the policy's base rollouts (successful or not), or the expert's successes."""
+    """The source's episodes: the policy's base rollouts (successful or not), or the expert's
+    successes."""
     from aed_eval.rollout import stored_rollouts
 
     if cfg.source == "policy":
-        return stored_rollouts(Path(cfg.rollouts), cfg.policy, policy_sha,
-                               hint=f"`aed rollout --task {cfg.task} --policy {cfg.policy} --split base`").refs  # fmt: skip
+        return stored_rollouts(
+            Path(cfg.rollouts),
+            cfg.policy,
+            policy_sha,
+            hint=f"`aed rollout --task {cfg.task} --policy {cfg.policy} --split base`",
+        ).refs
     episodes = trajectory.scan_collection(Path(cfg.data)).episodes()
     return [e for e in episodes if e.role == "agent_success" and e.split == "base"]
 
@@ -150,58 +165,98 @@ def calibrate_detectors(cfg: CalibrateConfig) -> dict[str, dict[str, Any]]:
 
     layout = RunLayout(cfg.runs)
     policy, policy_sha = load_policy_checked(layout.policy(cfg.task, cfg.policy))
-    detectors = [load_checked_detector(layout.detector(cfg.task, name, cfg.policy), name, cfg.task, policy_sha)
-                 for name in cfg.detectors]  # fmt: skip
-    models = {f"policy {cfg.policy}": policy.checkpoint_extra,
-              **{f"detector {d.name}": d.model.checkpoint_extra for d in detectors}}  # fmt: skip
+    detectors = [
+        load_checked_detector(
+            layout.detector(cfg.task, name, cfg.policy), name, cfg.task, policy_sha
+        )
+        for name in cfg.detectors
+    ]
+    models = {
+        f"policy {cfg.policy}": policy.checkpoint_extra,
+        **{f"detector {d.name}": d.model.checkpoint_extra for d in detectors},
+    }
     episodes = calibration_episodes(cfg, policy_sha)
     if cfg.envs:
         envs = sorted(cfg.envs)
     else:  # every environment of the source that no model trained on
         trained = set().union(*(trained_envs(label, extra)[1] for label, extra in models.items()))
-        envs = sorted({e.env_index for e in episodes} - (set() if cfg.allow_trained_envs else trained))
+        envs = sorted(
+            {e.env_index for e in episodes} - (set() if cfg.allow_trained_envs else trained)
+        )
     overlaps = check_held_out(models, "base", envs, "calibrate", cfg.allow_trained_envs)
     refs = [e for e in episodes if e.env_index in envs and e.success]
     if not refs:
-        logger.warning("calibrate %s: no successful %s episodes in held-out base environments %s; no threshold",
-                       cfg.policy, cfg.source, envs)  # fmt: skip
+        logger.warning(
+            "calibrate %s: no successful %s episodes in held-out base environments %s; "
+            "no threshold",
+            cfg.policy,
+            cfg.source,
+            envs,
+        )
     maxima: dict[str, list[float]] = {d.name: [] for d in detectors}
     if refs:
-        scorer = EpisodeScorer(detectors, policy, Demonstrations(Path(cfg.data), "base", cfg.num_demos))
-        for ref in tqdm(refs, desc=f"calibrate on {cfg.policy}'s {cfg.source} successes", disable=not cfg.progress):
+        scorer = EpisodeScorer(
+            detectors, policy, Demonstrations(Path(cfg.data), "base", cfg.num_demos)
+        )
+        for ref in tqdm(
+            refs,
+            desc=f"calibrate on {cfg.policy}'s {cfg.source} successes",
+            disable=not cfg.progress,
+        ):
             for name, scores in scorer.score(ref).items():
                 maxima[name].append(float(scores.max()))
         scorer.close()
     results = {}
     for d in detectors:
         values = np.asarray(maxima[d.name])
-        thresholds = {str(a): finite_or_none(metrics.conformal_threshold(values, a)) if len(values) else None
-                      for a in cfg.alphas}  # fmt: skip
+        thresholds = {
+            str(a): finite_or_none(metrics.conformal_threshold(values, a)) if len(values) else None
+            for a in cfg.alphas
+        }
         short = [a for a in cfg.alphas if thresholds[str(a)] is None]
         if short and refs:
-            logger.warning("%s: %d calibration successes cannot promise alpha %s (needs >= %s): no threshold there",
-                           d.name, len(values), short, [needed(a) for a in short])  # fmt: skip
+            logger.warning(
+                "%s: %d calibration successes cannot promise alpha %s (needs >= %s): "
+                "no threshold there",
+                d.name,
+                len(values),
+                short,
+                [needed(a) for a in short],
+            )
         body = {
-            "detector": d.name, "source": cfg.source, "thresholds": thresholds, "num_rollouts": len(values),
-            "of_rollouts": sum(e.env_index in envs for e in episodes), "envs": envs,
+            "detector": d.name,
+            "source": cfg.source,
+            "thresholds": thresholds,
+            "num_rollouts": len(values),
+            "of_rollouts": sum(e.env_index in envs for e in episodes),
+            "envs": envs,
             "episodes": str(cfg.rollouts if cfg.source == "policy" else cfg.data),
-            "detector_sha256": d.model.checkpoint_sha256, "policy_sha256": policy_sha,
-            "diagnostic": bool(overlaps), "trained_env_overlap": overlaps,
-        }  # fmt: skip
+            "detector_sha256": d.model.checkpoint_sha256,
+            "policy_sha256": policy_sha,
+            "diagnostic": bool(overlaps),
+            "trained_env_overlap": overlaps,
+        }
         trajectory.write_json_atomic(d.path.parent / FILES[cfg.source], body)
         results[d.name] = body
     return results
 
 
-def calibrate(cfg: Annotated[CalibrateConfig, tyro.conf.arg(name="")], output: Literal["text", "json"] = "text") -> int:
+def calibrate(
+    cfg: Annotated[CalibrateConfig, tyro.conf.arg(name="")],
+    output: Literal["text", "json"] = "text",
+) -> int:
     """Pick each detector's alarm thresholds for false-alarm rates <= alpha (split conformal)."""
     results = calibrate_detectors(cfg)
     if output == "json":
         print(json.dumps(results, indent=2))
         return 0
     for name, body in results.items():
-        cells = ", ".join(f"alpha {a}: {'-' if t is None else f'{t:.4g}'}" for a, t in body["thresholds"].items())
+        cells = ", ".join(
+            f"alpha {a}: {'-' if t is None else f'{t:.4g}'}" for a, t in body["thresholds"].items()
+        )
         flag = " (DIAGNOSTIC: environments a model trained on)" if body["diagnostic"] else ""
-        print(f"{name}: {cells} from {body['num_rollouts']} {cfg.source} successes (of {body['of_rollouts']} "
-              f"episodes) in base environments {body['envs']}{flag}")  # fmt: skip
+        print(
+            f"{name}: {cells} from {body['num_rollouts']} {cfg.source} successes (of "
+            f"{body['of_rollouts']} episodes) in base environments {body['envs']}{flag}"
+        )
     return 0

@@ -34,12 +34,15 @@ def trained_envs(label: str, extra: dict | None) -> tuple[str, set[int]]:
     if "train_envs" in extra:
         return str(extra.get("train_split", "base")), {int(e) for e in extra["train_envs"]}
     if "train_config" in extra:
-        raise ValueError(f"{label}: its checkpoint does not record its training environments; retrain it")
+        raise ValueError(
+            f"{label}: its checkpoint does not record its training environments; retrain it"
+        )
     return "base", set()
 
 
-def check_held_out(models: dict[str, dict | None], split: str, envs: Iterable[int], what: str,
-                   allow: bool = False) -> dict[str, list[int]]:  # fmt: skip
+def check_held_out(
+    models: dict[str, dict | None], split: str, envs: Iterable[int], what: str, allow: bool = False
+) -> dict[str, list[int]]:
     """Refuse to score models on environments they trained on: a ValueError in one line naming
     the model and the overlap, unless `allow` (a diagnostic); returns the overlaps either way.
 
@@ -55,6 +58,9 @@ def check_held_out(models: dict[str, dict | None], split: str, envs: Iterable[in
     if overlaps and not allow:
         label, common = next(iter(overlaps.items()))
         more = f" (and {len(overlaps) - 1} more models)" if len(overlaps) > 1 else ""
-        raise ValueError(f"{what}: {label} trained on {split} environments {common}{more}; score it on environments "
-                         "no compared model trained on, or pass --allow-trained-envs for a diagnostic")  # fmt: skip
+        raise ValueError(
+            f"{what}: {label} trained on {split} environments {common}{more}; "
+            "score it on environments no compared model trained on, or pass --allow-trained-envs "
+            "for a diagnostic"
+        )
     return overlaps

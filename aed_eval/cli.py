@@ -51,10 +51,22 @@ def _preset_commands() -> dict[str, tuple[Callable[..., Any], tuple[str, ...], C
     from aed_eval import collect, demo, rollout, train
 
     return {
-        "collect": (collect.CollectConfig.from_preset, ("task", "split", "profile"), collect.collect),
+        "collect": (
+            collect.CollectConfig.from_preset,
+            ("task", "split", "profile"),
+            collect.collect,
+        ),
         "train-policy": (train.policy_preset, ("task", "policy", "profile"), train.train_policy),
-        "train-detector": (train.detector_preset, ("task", "detector", "profile", "policy"), train.train_detector),
-        "rollout": (rollout.RolloutConfig.from_preset, ("task", "policy", "split", "profile"), rollout.rollout),
+        "train-detector": (
+            train.detector_preset,
+            ("task", "detector", "profile", "policy"),
+            train.train_detector,
+        ),
+        "rollout": (
+            rollout.RolloutConfig.from_preset,
+            ("task", "policy", "split", "profile"),
+            rollout.rollout,
+        ),
         "demo": (demo.DemoConfig.from_preset, ("task", "profile"), demo.demo),
     }
 
@@ -72,7 +84,9 @@ def parse_preset_command(name: str, argv: list[str]) -> Any:
         chooser.add_argument(f"--{key}")
     chosen, rest = chooser.parse_known_args(argv)  # the preset holds the chosen values already
     default = preset(**{k: v for k, v in vars(chosen).items() if v is not None})
-    return tyro.cli(type(default), default=default, args=rest, prog=f"aed {name}", description=command.__doc__)
+    return tyro.cli(
+        type(default), default=default, args=rest, prog=f"aed {name}", description=command.__doc__
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -93,7 +107,13 @@ def main(argv: list[str] | None = None) -> int:
             result = _preset_commands()[argv[0]][2](parse_preset_command(argv[0], argv[1:]))
         else:
             result = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="aed")
-    except (ValueError, KeyError, IndexError, FileNotFoundError, CollectionError) as e:  # CheckpointError is a ValueError
+    except (
+        ValueError,
+        KeyError,
+        IndexError,
+        FileNotFoundError,
+        CollectionError,
+    ) as e:  # CheckpointError is a ValueError
         if os.environ.get("AED_DEBUG"):
             raise
         message = e.args[0] if isinstance(e, KeyError) and e.args else e

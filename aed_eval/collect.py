@@ -100,7 +100,9 @@ class CollectConfig:
         task_cls = task_class(self.task)
         self.task = task_cls.task_name
         if self.split not in task_cls.catalogue_sizes:
-            raise ValueError(f"split={self.split!r}: {self.task} has splits {sorted(task_cls.catalogue_sizes)}")
+            raise ValueError(
+                f"split={self.split!r}: {self.task} has splits {sorted(task_cls.catalogue_sizes)}"
+            )
         check_profile(self.profile)
         size = task_cls.catalogue_sizes[self.split]
         for name in ("num_demos", "num_successes", "num_failures", "num_suboptimal_demos"):
@@ -108,15 +110,24 @@ class CollectConfig:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 0")
         bad = [i for i in self.envs if not 0 <= i < size]
         if bad:
-            raise ValueError(f"envs={self.envs}: {bad} outside {self.task}-{self.split}'s 0..{size - 1}")
+            raise ValueError(
+                f"envs={self.envs}: {bad} outside {self.task}-{self.split}'s 0..{size - 1}"
+            )
         if len(set(self.envs)) != len(self.envs):
             raise ValueError(f"envs={self.envs}: duplicates")
         if not self.envs and not 1 <= self.num_envs <= size:
-            raise ValueError(f"num_envs={self.num_envs}: must be in 1..{size} ({self.task}-{self.split})")
+            raise ValueError(
+                f"num_envs={self.num_envs}: must be in 1..{size} ({self.task}-{self.split})"
+            )
         if self.num_failures and not task_cls.error_kinds:
-            raise ValueError(f"num_failures={self.num_failures}: {self.task} declares no error kinds")
+            raise ValueError(
+                f"num_failures={self.num_failures}: {self.task} declares no error kinds"
+            )
         if self.num_suboptimal_demos and not task_cls.recoverable_errors:
-            raise ValueError(f"num_suboptimal_demos={self.num_suboptimal_demos}: {self.task} has no recoverable errors")
+            raise ValueError(
+                f"num_suboptimal_demos={self.num_suboptimal_demos}: {self.task} has no "
+                "recoverable errors"
+            )
         if not 0.0 <= self.max_retry_rate:
             raise ValueError(f"max_retry_rate={self.max_retry_rate}: must be >= 0")
         for name in ("shard_size", "workers", "max_attempts"):
@@ -134,18 +145,30 @@ class CollectConfig:
         self.out = Path(self.out)
 
     @classmethod
-    def from_preset(cls, task: str = "PickPlace", split: str = "base", profile: str = "mini",
-                    runs: Path = Path("runs"), **overrides: Any) -> CollectConfig:  # fmt: skip
+    def from_preset(
+        cls,
+        task: str = "PickPlace",
+        split: str = "base",
+        profile: str = "mini",
+        runs: Path = Path("runs"),
+        **overrides: Any,
+    ) -> CollectConfig:
         """The profile's counts for `split` (novel: demonstrations only), the layout's output
         folder under `runs`, then `overrides`."""
         counts = protocol(profile)
         task = task_class(task).task_name
         size = task_class(task).catalogue_sizes.get(split, 0)
         base = split == "base"
-        preset = {"task": task, "split": split, "profile": profile, "out": RunLayout(runs).data(task, split),
-                  "num_envs": counts.base_envs(size) if base else (counts.novel_envs or size),
-                  "num_demos": counts.num_demos, "num_successes": counts.num_successes if base else 0,
-                  "num_failures": counts.num_failures if base else 0}  # fmt: skip
+        preset = {
+            "task": task,
+            "split": split,
+            "profile": profile,
+            "out": RunLayout(runs).data(task, split),
+            "num_envs": counts.base_envs(size) if base else (counts.novel_envs or size),
+            "num_demos": counts.num_demos,
+            "num_successes": counts.num_successes if base else 0,
+            "num_failures": counts.num_failures if base else 0,
+        }
         return cls(**{**preset, **overrides})
 
     def env_indices(self) -> list[int]:
@@ -153,9 +176,11 @@ class CollectConfig:
 
     def counts(self) -> dict[str, int]:
         return {
-            "demo": self.num_demos, "demo_suboptimal": self.num_suboptimal_demos,
-            "agent_success": self.num_successes, "agent_failure": self.num_failures,
-        }  # fmt: skip
+            "demo": self.num_demos,
+            "demo_suboptimal": self.num_suboptimal_demos,
+            "agent_success": self.num_successes,
+            "agent_failure": self.num_failures,
+        }
 
     def identity(self) -> dict[str, Any]:
         return {k: plain_value(getattr(self, k)) for k in IDENTITY}
@@ -175,7 +200,8 @@ def plain_value(x: Any) -> Any:
 # --- shards and seeds --------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Shard:
-    """At most `shard_size` consecutive episodes (indices start..start+count-1) of one env and role."""
+    """At most `shard_size` consecutive episodes (indices start..start+count-1) of one env and
+    role."""
 
     task: str
     split: str
@@ -218,7 +244,9 @@ def plan_shards(cfg: CollectConfig) -> list[Shard]:
     return shards
 
 
-def episode_seed(root: int, task: str, split: str, env_index: int, group: str, k: int, attempt: int) -> int:
+def episode_seed(
+    root: int, task: str, split: str, env_index: int, group: str, k: int, attempt: int
+) -> int:
     """A 31-bit seed from the episode's identity alone (same on any worker, in any order)."""
     key = f"{root}/{task}/{split}/{env_index}/{group}/{k}/{attempt}".encode()
     return int.from_bytes(hashlib.sha256(key).digest()[:4], "little") & 0x7FFFFFFF
@@ -231,11 +259,13 @@ def error_kind_for(kinds: tuple[str, ...], env_index: int, k: int) -> str:
 
 # --- one worker --------------------------------------------------------------------------------
 class CollectError(ValueError):
-    """The expert could not produce a wanted episode within `max_attempts`, or needed too many retries."""
+    """The expert could not produce a wanted episode within `max_attempts`, or needed too many
+    retries."""
 
 
 class ExpertRunner(EpisodeRunner):
-    """The scripted expert's shards in one process, one env per appearance (gym.make costs seconds)."""
+    """The scripted expert's shards in one process, one env per appearance (gym.make costs
+    seconds)."""
 
     def __init__(self, cfg: CollectConfig):
         super().__init__(cfg)
@@ -251,11 +281,16 @@ class ExpertRunner(EpisodeRunner):
             import aed_tasks
 
             env = gym.make(
-                aed_tasks.env_id(self.cfg.task, self.cfg.split), demonstrator=demonstrator,
-                obs_mode=self.cfg.obs_mode, cameras=tuple(self.cfg.cameras),
-                terminate_on_success=False,  # stored `terminated` flags must not mark successes alone
-            )  # fmt: skip
-            self._envs[demonstrator] = trajectory.make_step_recorder(env, self.cfg.record_env_states)
+                aed_tasks.env_id(self.cfg.task, self.cfg.split),
+                demonstrator=demonstrator,
+                obs_mode=self.cfg.obs_mode,
+                cameras=tuple(self.cfg.cameras),
+                # stored `terminated` flags must not mark successes alone
+                terminate_on_success=False,
+            )
+            self._envs[demonstrator] = trajectory.make_step_recorder(
+                env, self.cfg.record_env_states
+            )
         return self._envs[demonstrator]
 
     def compression(self) -> trajectory.Compression:
@@ -278,9 +313,13 @@ class ExpertRunner(EpisodeRunner):
             error = ErrorSpec(error_kind_for(env.unwrapped.error_kinds, shard.env_index, k))
         problem, rejected = "", []
         for attempt in range(self.cfg.max_attempts):
-            seed = episode_seed(self.cfg.seed, shard.task, shard.split, shard.env_index, shard.group, k, attempt)
+            seed = episode_seed(
+                self.cfg.seed, shard.task, shard.split, shard.env_index, shard.group, k, attempt
+            )
             try:
-                episode = solve(env, seed, error=error, env_index=shard.env_index, suboptimal=shard.suboptimal)
+                episode = solve(
+                    env, seed, error=error, env_index=shard.env_index, suboptimal=shard.suboptimal
+                )
             except RuntimeError as e:  # e.g. a script that never reached its error's moment
                 problem = f"{type(e).__name__}: {e}"
             else:
@@ -289,10 +328,23 @@ class ExpertRunner(EpisodeRunner):
                 episode.depth.clear()
                 problem = _rejection(episode, shard)
                 if not problem:
-                    return episode, recorded, {"index": k, "attempt": attempt, "rejected": rejected, "shard": shard.stem}
+                    return (
+                        episode,
+                        recorded,
+                        {"index": k, "attempt": attempt, "rejected": rejected, "shard": shard.stem},
+                    )
             rejected.append(problem)
-            logger.warning("%s episode %d attempt %d (seed %d) rejected: %s", shard.stem, k, attempt, seed, problem)
-        raise CollectError(f"{shard.stem}: episode {k} failed {self.cfg.max_attempts} attempts; last: {problem}")
+            logger.warning(
+                "%s episode %d attempt %d (seed %d) rejected: %s",
+                shard.stem,
+                k,
+                attempt,
+                seed,
+                problem,
+            )
+        raise CollectError(
+            f"{shard.stem}: episode {k} failed {self.cfg.max_attempts} attempts; last: {problem}"
+        )
 
 
 def _rejection(episode: Any, shard: Shard) -> str:
@@ -312,7 +364,10 @@ def _rejection(episode: Any, shard: Shard) -> str:
     if not episode.succeeded:
         return f"the expert did not succeed (stage {int(episode.stage.max(initial=0))})"
     if shard.suboptimal and episode.first_attempt_problem:
-        return f"the first attempt ({episode.first_attempt_kind}) did not fail as named: {episode.first_attempt_problem}"
+        return (
+            f"the first attempt ({episode.first_attempt_kind}) did not fail as named: "
+            f"{episode.first_attempt_problem}"
+        )
     return ""
 
 
@@ -328,11 +383,19 @@ def run_collection(
     of an earlier call instead of making new ones.
     """
     if runner is not None and _env_key(runner.cfg) != _env_key(cfg):
-        raise ValueError(f"runner made for {_env_key(runner.cfg)}, this collection needs {_env_key(cfg)}")
+        raise ValueError(
+            f"runner made for {_env_key(runner.cfg)}, this collection needs {_env_key(cfg)}"
+        )
     if runner is not None:
         runner.cfg = cfg
-    summary = produce(cfg, plan_shards(cfg), ExpertRunner, f"collect {cfg.task}-{cfg.split}", on_done=on_shard_done,
-                      runner=runner)  # fmt: skip
+    summary = produce(
+        cfg,
+        plan_shards(cfg),
+        ExpertRunner,
+        f"collect {cfg.task}-{cfg.split}",
+        on_done=on_shard_done,
+        runner=runner,
+    )
     check_retry_rate(Path(cfg.out), cfg.max_retry_rate)
     return summary
 
@@ -349,12 +412,15 @@ def retries(root: Path) -> tuple[int, int, Counter]:
 
 
 def check_retry_rate(root: Path, max_rate: float) -> None:
-    """Fail loudly when the experts needed too many retries: their behaviour is not what it claims."""
+    """Fail loudly when the experts needed too many retries: their behaviour is not what it
+    claims."""
     episodes, rejected, problems = retries(root)
     if episodes and rejected / episodes > max_rate:
         common = "; ".join(f"{n}x {p}" for p, n in problems.most_common(3))
-        raise CollectError(f"{root}: {rejected} rejected tries for {episodes} episodes ({rejected / episodes:.0%} > "
-                           f"max_retry_rate={max_rate:.0%}); most common: {common}")  # fmt: skip
+        raise CollectError(
+            f"{root}: {rejected} rejected tries for {episodes} episodes ({rejected / episodes:.0%} "
+            f"> max_retry_rate={max_rate:.0%}); most common: {common}"
+        )
 
 
 def _env_key(cfg: CollectConfig) -> tuple:
@@ -367,6 +433,8 @@ def collect(cfg: Annotated[CollectConfig, tyro.conf.arg(name="")]) -> int:
     start = time.perf_counter()
     summary = run_collection(cfg)
     seconds = time.perf_counter() - start
-    print(f"{summary.out}: {summary.planned} shards ({summary.skipped} already there), "
-          f"recorded {summary.episodes} episodes / {summary.steps} steps in {seconds:.1f} s")  # fmt: skip
+    print(
+        f"{summary.out}: {summary.planned} shards ({summary.skipped} already there), "
+        f"recorded {summary.episodes} episodes / {summary.steps} steps in {seconds:.1f} s"
+    )
     return 0

@@ -37,7 +37,9 @@ def summarize(root: Path, check: trajectory.Check = "quick") -> dict[str, Any]:
         "splits": sorted({e.split for e in episodes}),
         "by_role": dict(sorted(by_role.items())),
         "by_env": {str(k): dict(sorted(v.items())) for k, v in sorted(by_env.items())},
-        "error_kinds": dict(sorted(Counter(e.error_kind for e in episodes if e.error_kind).items())),
+        "error_kinds": dict(
+            sorted(Counter(e.error_kind for e in episodes if e.error_kind).items())
+        ),
         "lengths": {role: _stats(v) for role, v in sorted(lengths.items())},
         # the same endings for both outcomes: their length distributions should overlap
         "lengths_by_outcome": {
@@ -45,7 +47,10 @@ def summarize(root: Path, check: trajectory.Check = "quick") -> dict[str, Any]:
             for outcome in ("success", "failure")
             if any(e.success == (outcome == "success") for e in episodes)
         },
-        "success_rate": {role: float(np.mean([e.success for e in episodes if e.role == role])) for role in lengths},
+        "success_rate": {
+            role: float(np.mean([e.success for e in episodes if e.role == role]))
+            for role in lengths
+        },
         "retries": _retries(collection),
         "disk_bytes": disk,
         "bytes_per_frame": disk / frames if frames else 0.0,
@@ -54,26 +59,34 @@ def summarize(root: Path, check: trajectory.Check = "quick") -> dict[str, Any]:
 
 
 def _retries(collection: trajectory.Collection) -> dict[str, Any]:
-    """Tries the collection rejected (an expert that could not plan, or missed its role's outcome)."""
+    """Tries the collection rejected (an expert that could not plan, or missed its role's
+    outcome)."""
     entries = [entry for shard in collection.shards for entry in shard.body["episodes"]]
     rejected = sum(int(e.get("attempt", 0)) for e in entries)
     problems = Counter(p[:100] for e in entries for p in e.get("rejected", []))
-    return {"rejected": rejected, "per_episode": rejected / len(entries) if entries else 0.0,
-            "problems": dict(problems.most_common(5))}  # fmt: skip
+    return {
+        "rejected": rejected,
+        "per_episode": rejected / len(entries) if entries else 0.0,
+        "problems": dict(problems.most_common(5)),
+    }
 
 
 def _stats(values: list[int]) -> dict[str, float]:
     a = np.asarray(values)
     return {
-        "count": len(a), "min": int(a.min()), "median": float(np.median(a)), "mean": float(a.mean()),
+        "count": len(a),
+        "min": int(a.min()),
+        "median": float(np.median(a)),
+        "mean": float(a.mean()),
         "max": int(a.max()),
-    }  # fmt: skip
+    }
 
 
 def format_summary(info: dict[str, Any]) -> str:
     lines = [
-        f"{info['path']}: {info['episodes']} episodes, {info['frames']} frames in {info['shards']} shards, "
-        f"{info['disk_bytes'] / 2**20:.1f} MiB ({info['bytes_per_frame'] / 1024:.1f} KiB/frame)",
+        f"{info['path']}: {info['episodes']} episodes, {info['frames']} frames "
+        f"in {info['shards']} shards, {info['disk_bytes'] / 2**20:.1f} MiB "
+        f"({info['bytes_per_frame'] / 1024:.1f} KiB/frame)",
         f"tasks {', '.join(info['tasks']) or '-'}; splits {', '.join(info['splits']) or '-'}",
         "by role:        " + _pairs(info["by_role"]),
         "error kinds:    " + _pairs(info["error_kinds"]),
@@ -84,14 +97,19 @@ def format_summary(info: dict[str, Any]) -> str:
     for outcome, s in info["lengths_by_outcome"].items():
         lines.append(f"  {'all, ' + outcome:<16}{_lengths(s)}")
     retries = info["retries"]
-    lines.append(f"retries:        {retries['rejected']} rejected tries ({retries['per_episode']:.2f} per episode)"
-                 + "".join(f"\n  {n}x {p}" for p, n in retries["problems"].items()))  # fmt: skip
+    lines.append(
+        f"retries:        {retries['rejected']} rejected tries "
+        f"({retries['per_episode']:.2f} per episode)"
+        + "".join(f"\n  {n}x {p}" for p, n in retries["problems"].items())
+    )
     roles = sorted({r for counts in info["by_env"].values() for r in counts})
     lines.append("by environment: " + " ".join(f"{r:>14}" for r in roles))
     for env, counts in info["by_env"].items():
         lines.append(f"  env {int(env):<10}" + " ".join(f"{counts.get(r, 0):>14}" for r in roles))
     if info["leftovers"]:
-        lines.append(f"unfinished (interrupted run; re-run aed collect): {', '.join(info['leftovers'])}")
+        lines.append(
+            f"unfinished (interrupted run; re-run aed collect): {', '.join(info['leftovers'])}"
+        )
     return "\n".join(lines)
 
 
@@ -103,7 +121,11 @@ def _pairs(counts: dict[str, int]) -> str:
     return ", ".join(f"{k} {v}" for k, v in counts.items()) or "-"
 
 
-def data_info(path: tyro.conf.Positional[Path], check: Literal["quick", "full"] = "quick", as_json: bool = False) -> int:
+def data_info(
+    path: tyro.conf.Positional[Path],
+    check: Literal["quick", "full"] = "quick",
+    as_json: bool = False,
+) -> int:
     """Summarise a collection: counts by role, environment, error kind; lengths; disk size.
 
     Args:

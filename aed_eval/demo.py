@@ -83,30 +83,58 @@ class DemoConfig(Protocol):
             raise ValueError(f"policies={self.policies}: known {sorted(POLICIES)}")
         check_detectors(self.detectors)
         sizes = task_cls.catalogue_sizes
-        for name in ("train_envs", "calibration_envs", "novel_envs", "num_demos", "num_successes", "num_failures",
-                     "rollouts", "calibration_rollouts", "workers", "horizon"):  # fmt: skip
+        for name in (
+            "train_envs",
+            "calibration_envs",
+            "novel_envs",
+            "num_demos",
+            "num_successes",
+            "num_failures",
+            "rollouts",
+            "calibration_rollouts",
+            "workers",
+            "horizon",
+        ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
         if self.policy_epochs < 0 or self.detector_epochs < 0:
-            raise ValueError(f"policy_epochs={self.policy_epochs}, detector_epochs={self.detector_epochs}: must be >= 0")
+            raise ValueError(
+                f"policy_epochs={self.policy_epochs}, detector_epochs={self.detector_epochs}: "
+                "must be >= 0"
+            )
         if self.train_envs + self.calibration_envs > sizes["base"]:
-            raise ValueError(f"train_envs={self.train_envs} + calibration_envs={self.calibration_envs}: "
-                             f"{self.task} has {sizes['base']} base environments")  # fmt: skip
+            raise ValueError(
+                f"train_envs={self.train_envs} + calibration_envs={self.calibration_envs}: "
+                f"{self.task} has {sizes['base']} base environments"
+            )
         if self.novel_envs > sizes["novel"]:
-            raise ValueError(f"novel_envs={self.novel_envs}: {self.task} has {sizes['novel']} novel environments")
+            raise ValueError(
+                f"novel_envs={self.novel_envs}: {self.task} has {sizes['novel']} novel environments"
+            )
         if not self.alphas or not all(0.0 < a < 1.0 for a in self.alphas):
             raise ValueError(f"alphas={self.alphas}: each must lie in (0, 1)")
         self.runs = Path(self.runs)
 
     @classmethod
-    def from_preset(cls, task: str = "PressButton", profile: str = "demo", runs: Path = Path("runs/demo"),
-                    **overrides: Any) -> DemoConfig:  # fmt: skip
+    def from_preset(
+        cls,
+        task: str = "PressButton",
+        profile: str = "demo",
+        runs: Path = Path("runs/demo"),
+        **overrides: Any,
+    ) -> DemoConfig:
         """The profile's protocol counts and the task's evaluation horizon, then `overrides`."""
         counts, task_cls = protocol(profile), task_class(task)
         sizes = task_cls.catalogue_sizes
-        preset = {**dataclasses.asdict(counts), "task": task_cls.task_name, "profile": profile, "runs": runs,
-                  "train_envs": counts.training_envs(sizes["base"]), "novel_envs": counts.novel_envs or sizes["novel"],
-                  "horizon": task_cls.eval_horizon}  # fmt: skip
+        preset = {
+            **dataclasses.asdict(counts),
+            "task": task_cls.task_name,
+            "profile": profile,
+            "runs": runs,
+            "train_envs": counts.training_envs(sizes["base"]),
+            "novel_envs": counts.novel_envs or sizes["novel"],
+            "horizon": task_cls.eval_horizon,
+        }
         return cls(**{**preset, **overrides})
 
     @property
@@ -134,10 +162,25 @@ class Stages:
         from aed_eval.collect import CollectConfig, run_collection
 
         c = self.cfg
-        common = {"task": c.task, "split": "base", "profile": c.profile, "runs": c.runs, "num_demos": c.num_demos,
-                  "num_successes": c.num_successes, "workers": c.workers, "seed": c.seed, "shard_size": 5}  # fmt: skip
-        run_collection(CollectConfig.from_preset(**common, envs=tuple(range(c.train_envs)), num_failures=c.num_failures))
-        run_collection(CollectConfig.from_preset(**common, envs=c.calibration_env_indices, num_failures=0))
+        common = {
+            "task": c.task,
+            "split": "base",
+            "profile": c.profile,
+            "runs": c.runs,
+            "num_demos": c.num_demos,
+            "num_successes": c.num_successes,
+            "workers": c.workers,
+            "seed": c.seed,
+            "shard_size": 5,
+        }
+        run_collection(
+            CollectConfig.from_preset(
+                **common, envs=tuple(range(c.train_envs)), num_failures=c.num_failures
+            )
+        )
+        run_collection(
+            CollectConfig.from_preset(**common, envs=c.calibration_env_indices, num_failures=0)
+        )
 
     def train_policies(self) -> None:
         from aed_models.train.policy import TrainPolicyConfig, train_policy
@@ -145,8 +188,17 @@ class Stages:
         c = self.cfg
         epochs = {"epochs": c.policy_epochs} if c.policy_epochs else {}
         for policy in c.policies:
-            train_policy(TrainPolicyConfig.from_preset(c.task, policy, c.profile, runs=c.runs, num_envs=c.train_envs,
-                                                       seed=c.seed, **epochs))  # fmt: skip
+            train_policy(
+                TrainPolicyConfig.from_preset(
+                    c.task,
+                    policy,
+                    c.profile,
+                    runs=c.runs,
+                    num_envs=c.train_envs,
+                    seed=c.seed,
+                    **epochs,
+                )
+            )
 
     def train_detectors(self) -> None:
         from aed_models.detectors import requires_policy
@@ -156,31 +208,81 @@ class Stages:
         epochs = {"epochs": c.detector_epochs} if c.detector_epochs else {}
         for detector in c.detectors:
             for policy in c.policies if requires_policy(detector) else (None,):
-                train_detector(TrainDetectorConfig.from_preset(c.task, detector, c.profile, policy=policy, runs=c.runs,
-                                                               num_envs=c.train_envs, seed=c.seed, **epochs))  # fmt: skip
+                train_detector(
+                    TrainDetectorConfig.from_preset(
+                        c.task,
+                        detector,
+                        c.profile,
+                        policy=policy,
+                        runs=c.runs,
+                        num_envs=c.train_envs,
+                        seed=c.seed,
+                        **epochs,
+                    )
+                )
 
     def collect_novel(self) -> None:
         from aed_eval.collect import CollectConfig, run_collection
 
         c = self.cfg
-        common = {"task": c.task, "split": "novel", "profile": c.profile, "runs": c.runs, "num_envs": c.novel_envs,
-                  "workers": c.workers, "seed": c.seed, "shard_size": 5}  # fmt: skip
-        run_collection(CollectConfig.from_preset(**common, num_demos=c.num_demos, num_successes=0, num_failures=0))
+        common = {
+            "task": c.task,
+            "split": "novel",
+            "profile": c.profile,
+            "runs": c.runs,
+            "num_envs": c.novel_envs,
+            "workers": c.workers,
+            "seed": c.seed,
+            "shard_size": 5,
+        }
+        run_collection(
+            CollectConfig.from_preset(
+                **common, num_demos=c.num_demos, num_successes=0, num_failures=0
+            )
+        )
         if c.labelled:
-            run_collection(CollectConfig.from_preset(**common, num_demos=0, num_successes=c.labelled,
-                                                     num_failures=c.labelled, out=self.layout.labelled(c.task, "novel")))  # fmt: skip
+            run_collection(
+                CollectConfig.from_preset(
+                    **common,
+                    num_demos=0,
+                    num_successes=c.labelled,
+                    num_failures=c.labelled,
+                    out=self.layout.labelled(c.task, "novel"),
+                )
+            )
 
     def roll_out(self) -> None:
         from aed_eval.rollout import RolloutConfig, run_rollouts
 
         c = self.cfg
-        common = {"task": c.task, "runs": c.runs, "profile": c.profile, "num_demos": c.num_demos, "workers": c.workers,
-                  "horizon": c.horizon, "seed": c.seed}  # fmt: skip
+        common = {
+            "task": c.task,
+            "runs": c.runs,
+            "profile": c.profile,
+            "num_demos": c.num_demos,
+            "workers": c.workers,
+            "horizon": c.horizon,
+            "seed": c.seed,
+        }
         for policy in c.policies:
-            run_rollouts(RolloutConfig.from_preset(**common, policy=policy, split="novel", num_envs=c.novel_envs,
-                                                   num_episodes=c.rollouts))  # fmt: skip
-            run_rollouts(RolloutConfig.from_preset(**common, policy=policy, split="base", envs=c.calibration_env_indices,
-                                                   num_episodes=c.calibration_rollouts))  # fmt: skip
+            run_rollouts(
+                RolloutConfig.from_preset(
+                    **common,
+                    policy=policy,
+                    split="novel",
+                    num_envs=c.novel_envs,
+                    num_episodes=c.rollouts,
+                )
+            )
+            run_rollouts(
+                RolloutConfig.from_preset(
+                    **common,
+                    policy=policy,
+                    split="base",
+                    envs=c.calibration_env_indices,
+                    num_episodes=c.calibration_rollouts,
+                )
+            )
 
     def calibrate(self) -> None:
         from aed_eval.calibrate import SOURCES, CalibrateConfig, calibrate_detectors
@@ -188,9 +290,18 @@ class Stages:
         c = self.cfg
         for policy in c.policies:
             for source in SOURCES:
-                calibrate_detectors(CalibrateConfig(task=c.task, policy=policy, detectors=c.detectors, alphas=c.alphas,
-                                                    source=source, envs=c.calibration_env_indices,
-                                                    num_demos=c.num_demos, runs=c.runs))  # fmt: skip
+                calibrate_detectors(
+                    CalibrateConfig(
+                        task=c.task,
+                        policy=policy,
+                        detectors=c.detectors,
+                        alphas=c.alphas,
+                        source=source,
+                        envs=c.calibration_env_indices,
+                        num_demos=c.num_demos,
+                        runs=c.runs,
+                    )
+                )
 
     def evaluate(self) -> list[Path]:
         from aed_eval.evaluate import EvaluateConfig, evaluate_policy
@@ -198,8 +309,14 @@ class Stages:
         c = self.cfg
         paths = []
         for policy in c.policies:
-            cfg = EvaluateConfig(task=c.task, policy=policy, detectors=c.detectors, num_demos=c.num_demos, runs=c.runs,
-                                 seed=c.seed)  # fmt: skip
+            cfg = EvaluateConfig(
+                task=c.task,
+                policy=policy,
+                detectors=c.detectors,
+                num_demos=c.num_demos,
+                runs=c.runs,
+                seed=c.seed,
+            )
             evaluate_policy(cfg)
             paths.append(Path(cfg.out) / "results.json")
         return paths
@@ -225,7 +342,8 @@ def run_demo(cfg: DemoConfig) -> tuple[Path, dict[str, float]]:
 
 
 def demo(cfg: Annotated[DemoConfig, tyro.conf.arg(name="")]) -> int:
-    """The whole AED pipeline for one task on this CPU: collect, train, roll out, calibrate, evaluate, report."""
+    """The whole AED pipeline for one task on this CPU: collect, train, roll out, calibrate,
+    evaluate, report."""
     from aed_eval.doctor import rendering_device
 
     if rendering_device() is None:
@@ -234,14 +352,20 @@ def demo(cfg: Annotated[DemoConfig, tyro.conf.arg(name="")]) -> int:
     start = time.perf_counter()
     path, times = run_demo(cfg)
     total = time.perf_counter() - start
-    summary = {"config": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()},
-               "stage_seconds": times, "total_seconds": round(total, 1), "report": str(path)}  # fmt: skip
+    summary = {
+        "config": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()},
+        "stage_seconds": times,
+        "total_seconds": round(total, 1),
+        "report": str(path),
+    }
     (cfg.runs / "demo.json").write_text(json.dumps(summary, indent=2))
     print(path.read_text())
-    print(f"ran: {cfg.task}, policies {', '.join(cfg.policies)}, detectors {', '.join(cfg.detectors)}; trained on "
-          f"{cfg.train_envs} base environments, calibrated on {cfg.calibration_envs} held-out ones x "
-          f"{cfg.calibration_rollouts} rollouts, deployed in {cfg.novel_envs} novel environments x {cfg.rollouts} "
-          f"rollouts of {cfg.horizon} steps")  # fmt: skip
+    print(
+        f"ran: {cfg.task}, policies {', '.join(cfg.policies)}, detectors "
+        f"{', '.join(cfg.detectors)}; trained on {cfg.train_envs} base environments, calibrated on "
+        f"{cfg.calibration_envs} held-out ones x {cfg.calibration_rollouts} rollouts, deployed in "
+        f"{cfg.novel_envs} novel environments x {cfg.rollouts} rollouts of {cfg.horizon} steps"
+    )
     print("stage times: " + ", ".join(f"{k} {v:.0f} s" for k, v in times.items()))
     print(f"demo finished in {total / 60:.1f} min; report: {path}")
     return 0

@@ -16,7 +16,16 @@ VULKAN_HELP = (
     "libnvidia-gl) instead."
 )
 
-PACKAGES = ("aed-toolkit", "mani-skill", "sapien", "mplib", "numpy", "torch", "gymnasium", "opencv-python-headless")
+PACKAGES = (
+    "aed-toolkit",
+    "mani-skill",
+    "sapien",
+    "mplib",
+    "numpy",
+    "torch",
+    "gymnasium",
+    "opencv-python-headless",
+)
 
 
 def rendering_device() -> str | None:

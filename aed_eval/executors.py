@@ -72,9 +72,12 @@ def execute(
 
 
 def _execute_inline(
-    jobs: Sequence[Any], make_runner: Callable[[], Runner], on_done: Callable[[Any], None],
-    tick: Callable[[int], None] | None, runner: Runner | None,
-) -> None:  # fmt: skip
+    jobs: Sequence[Any],
+    make_runner: Callable[[], Runner],
+    on_done: Callable[[Any], None],
+    tick: Callable[[int], None] | None,
+    runner: Runner | None,
+) -> None:
     own = runner is None
     runner = runner or make_runner()
     try:
@@ -91,7 +94,10 @@ def worker_threads(workers: int) -> int:
     value = os.environ.get("AED_WORKER_THREADS")
     if value is not None:
         if not value.isdigit():
-            raise ValueError(f"AED_WORKER_THREADS={value!r}: a number of threads, or 0 for the libraries' defaults")
+            raise ValueError(
+                f"AED_WORKER_THREADS={value!r}: a number of threads, "
+                "or 0 for the libraries' defaults"
+            )
         return int(value)
     return max(1, (os.cpu_count() or 1) // workers)
 
@@ -114,7 +120,9 @@ def share_cores(threads: int) -> None:
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(make_runner: Callable[[], Runner], ticks: Any, log_level: int, threads: int) -> None:
+def _init_worker(
+    make_runner: Callable[[], Runner], ticks: Any, log_level: int, threads: int
+) -> None:
     setup_logging(log_level)
     share_cores(threads)
     _WORKER["runner"] = make_runner()
@@ -127,9 +135,12 @@ def _run_in_worker(job: Any) -> Any:
 
 
 def _execute_pool(
-    jobs: Sequence[Any], make_runner: Callable[[], Runner], on_done: Callable[[Any], None], workers: int,
+    jobs: Sequence[Any],
+    make_runner: Callable[[], Runner],
+    on_done: Callable[[Any], None],
+    workers: int,
     tick: Callable[[int], None] | None,
-) -> None:  # fmt: skip
+) -> None:
     import multiprocessing as mp
     import queue as queue_lib
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -139,8 +150,12 @@ def _execute_pool(
     level = logging.getLogger().getEffectiveLevel()
     workers = min(workers, len(jobs))
     threads = worker_threads(workers)
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
-                             initargs=(make_runner, ticks, level, threads)) as pool:  # fmt: skip
+    with ProcessPoolExecutor(
+        workers,
+        mp_context=ctx,
+        initializer=_init_worker,
+        initargs=(make_runner, ticks, level, threads),
+    ) as pool:
         pending = {pool.submit(_run_in_worker, job) for job in jobs}
         try:
             while pending:
@@ -161,9 +176,13 @@ def _execute_pool(
 
 
 def _execute_ray(
-    jobs: Sequence[Any], make_runner: Callable[[], Runner], on_done: Callable[[Any], None], workers: int,
-    ray_address: str | None, tick: Callable[[int], None] | None,
-) -> None:  # fmt: skip
+    jobs: Sequence[Any],
+    make_runner: Callable[[], Runner],
+    on_done: Callable[[Any], None],
+    workers: int,
+    ray_address: str | None,
+    tick: Callable[[int], None] | None,
+) -> None:
     try:
         import ray
         from ray.util import ActorPool

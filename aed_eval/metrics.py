@@ -3,7 +3,8 @@
 Rollout-level accuracy (the paper's appendix, after MoMaRT). A rollout raises an alarm at a
 threshold when any of its frames' scores reaches it; then
 
-    failed + alarm = TP,  failed + no alarm = FN,  succeeded + alarm = FP,  succeeded + no alarm = TN.
+    failed + alarm = TP,     failed + no alarm = FN,
+    succeeded + alarm = FP,  succeeded + no alarm = TN.
 
 Since "any frame reaches it" is "the rollout's maximum reaches it", every rollout-level
 count depends on the per-rollout maximum score alone. ROC and PR curves sweep 5000
@@ -47,8 +48,11 @@ def rollout_maxima(scores: Sequence[np.ndarray]) -> np.ndarray:
     return np.asarray([float(np.max(s)) for s in scores])
 
 
-def thresholds(kind: str, maxima: np.ndarray | None = None, num: int = NUM_THRESHOLDS) -> np.ndarray:
-    """`num` thresholds spread evenly over [0, 1] (`probability`) or the observed range (`distance`)."""
+def thresholds(
+    kind: str, maxima: np.ndarray | None = None, num: int = NUM_THRESHOLDS
+) -> np.ndarray:
+    """`num` thresholds spread evenly over [0, 1] (`probability`) or the observed range
+    (`distance`)."""
     if kind == "probability":
         return np.linspace(0.0, 1.0, num)
     if kind == "distance":
@@ -113,7 +117,13 @@ def rollout_curves(maxima: np.ndarray, failed: np.ndarray, grid: np.ndarray) -> 
     # alarms at threshold t: rollouts whose maximum >= t
     tp = len(order[0]) - np.searchsorted(order[0], grid, side="left")
     fp = len(order[1]) - np.searchsorted(order[1], grid, side="left")
-    return Curves(np.asarray(grid, dtype=float), tp.astype(float), fp.astype(float), int(failed.sum()), int((~failed).sum()))
+    return Curves(
+        np.asarray(grid, dtype=float),
+        tp.astype(float),
+        fp.astype(float),
+        int(failed.sum()),
+        int((~failed).sum()),
+    )
 
 
 def exact_auroc(positive: np.ndarray, negative: np.ndarray) -> float:
@@ -136,7 +146,9 @@ def frame_auroc(scores: Sequence[np.ndarray], labels: Sequence[np.ndarray]) -> f
     return exact_auroc(s[y], s[~y])
 
 
-def time_matched_auroc(scores: Sequence[np.ndarray], labels: Sequence[np.ndarray], bin_width: int = 5) -> float:
+def time_matched_auroc(
+    scores: Sequence[np.ndarray], labels: Sequence[np.ndarray], bin_width: int = 5
+) -> float:
     """Frame-level AUROC counting only (error, normal) pairs from the same time bin.
 
     Error frames come after an onset, so they are late in an episode: a score that only grows
@@ -214,15 +226,23 @@ def alarm_rates(scores: Sequence[np.ndarray], failed: np.ndarray, threshold: flo
     tnr = float((~alarmed[~failed]).mean()) if (~failed).any() else float("nan")
     false_alarms, successes = int(alarmed[~failed].sum()), int((~failed).sum())
     steps = [a for a, f in zip(alarms, failed, strict=True) if f and a is not None]
-    fractions = [a / max(len(s) - 1, 1) for a, s, f in zip(alarms, scores, failed, strict=True) if f and a is not None]
+    fractions = [
+        a / max(len(s) - 1, 1)
+        for a, s, f in zip(alarms, scores, failed, strict=True)
+        if f and a is not None
+    ]
     return AlarmRates(
-        threshold=threshold, tpr=tpr, tnr=tnr, balanced_accuracy=(tpr + tnr) / 2,  # nan without both outcomes
-        false_alarms=false_alarms, successes=successes,
+        threshold=threshold,
+        tpr=tpr,
+        tnr=tnr,
+        balanced_accuracy=(tpr + tnr) / 2,  # nan without both outcomes
+        false_alarms=false_alarms,
+        successes=successes,
         false_alarm_rate=false_alarms / successes if successes else float("nan"),
         false_alarm_interval=proportion_interval(false_alarms, successes),
         detection_step_mean=float(np.mean(steps)) if steps else float("nan"),
         detection_fraction_mean=float(np.mean(fractions)) if fractions else float("nan"),
-    )  # fmt: skip
+    )
 
 
 DELAY_CLASSES = ("early", "on_time", "late", "missed")
@@ -246,8 +266,12 @@ def detection_delays(
         delay = alarm - int(onset)
         delays.append(delay)
         counts["early" if delay < 0 else "on_time" if delay <= window else "late"] += 1
-    return {"counts": counts, "delays": delays, "median_delay": float(np.median(delays)) if delays else float("nan"),
-            "window": window}  # fmt: skip
+    return {
+        "counts": counts,
+        "delays": delays,
+        "median_delay": float(np.median(delays)) if delays else float("nan"),
+        "window": window,
+    }
 
 
 # --- reference scores ----------------------------------------------------------------------------
@@ -279,9 +303,13 @@ def stratified_bootstrap(
     if not groups:
         return float("nan"), float("nan")
     rng = np.random.default_rng(seed)
-    values = np.asarray([
-        statistic(np.concatenate([rng.choice(g, size=len(g), replace=True) for g in groups])) for _ in range(num)
-    ], dtype=float)  # fmt: skip
+    values = np.asarray(
+        [
+            statistic(np.concatenate([rng.choice(g, size=len(g), replace=True) for g in groups]))
+            for _ in range(num)
+        ],
+        dtype=float,
+    )
     values = values[np.isfinite(values)]
     if not len(values):
         return float("nan"), float("nan")
@@ -290,7 +318,11 @@ def stratified_bootstrap(
 
 
 def curve_intervals(
-    maxima: np.ndarray, failed: np.ndarray, grid: np.ndarray, num: int = NUM_BOOTSTRAP, seed: int = 0
+    maxima: np.ndarray,
+    failed: np.ndarray,
+    grid: np.ndarray,
+    num: int = NUM_BOOTSTRAP,
+    seed: int = 0,
 ) -> dict[str, tuple[float, float]]:
     """95% intervals of AUROC and AUPRC, rollouts resampled within each outcome class.
 
@@ -301,15 +333,22 @@ def curve_intervals(
     intervals = {}
     for name in ("auroc", "auprc"):
         intervals[name] = stratified_bootstrap(
-            lambda idx, name=name: getattr(rollout_curves(maxima[idx], failed[idx], grid), name), groups, num, seed=seed
+            lambda idx, name=name: getattr(rollout_curves(maxima[idx], failed[idx], grid), name),
+            groups,
+            num,
+            seed=seed,
         )
     return intervals
 
 
-def rate_interval(outcomes: np.ndarray, num: int = NUM_BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
+def rate_interval(
+    outcomes: np.ndarray, num: int = NUM_BOOTSTRAP, seed: int = 0
+) -> tuple[float, float]:
     """95% bootstrap interval of a rate (e.g. the policy's success rate) over its trials."""
     outcomes = np.asarray(outcomes, dtype=float)
-    return stratified_bootstrap(lambda idx: float(outcomes[idx].mean()), [np.arange(len(outcomes))], num, seed=seed)
+    return stratified_bootstrap(
+        lambda idx: float(outcomes[idx].mean()), [np.arange(len(outcomes))], num, seed=seed
+    )
 
 
 def proportion_interval(hits: int, trials: int, level: float = LEVEL) -> tuple[float, float]:
@@ -325,7 +364,9 @@ def proportion_interval(hits: int, trials: int, level: float = LEVEL) -> tuple[f
     z = NormalDist().inv_cdf(0.5 + level / 2)
     p = hits / trials
     centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
-    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
+    half = (
+        z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
+    )
     return max(0.0, centre - half), min(1.0, centre + half)
 
 

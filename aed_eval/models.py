@@ -24,8 +24,14 @@ class ModelRow:
     note: str = ""  # why the count differs from the paper's
 
     def to_dict(self) -> dict[str, Any]:
-        return {"family": self.family, "name": self.name, "reads": self.reads, "parameters": self.parameters,
-                "paper": self.paper, "note": self.note}  # fmt: skip
+        return {
+            "family": self.family,
+            "name": self.name,
+            "reads": self.reads,
+            "parameters": self.parameters,
+            "paper": self.paper,
+            "note": self.note,
+        }
 
 
 def count(module: Any) -> int:
@@ -38,7 +44,7 @@ def model_rows(profile: Literal["mini", "paper"] = "paper") -> list[ModelRow]:
         DETECTORS,
         PAPER_NOTES,
         PAPER_PARAMETERS,
-            make_detector,
+        make_detector,
     )
     from aed_models.policies import POLICIES, make_policy
 
@@ -55,10 +61,16 @@ def model_rows(profile: Literal["mini", "paper"] = "paper") -> list[ModelRow]:
                 if hasattr(config, "task_dim"):
                     dims["task_dim"] = policy.task_dim
                 detector = make_detector(name, config, **dims)
-                rows.append(ModelRow("detector", name, f"{policy_name} features", count(detector), paper, note))
+                rows.append(
+                    ModelRow(
+                        "detector", name, f"{policy_name} features", count(detector), paper, note
+                    )
+                )
         else:
             arch = getattr(config, "arch", "own encoder")
-            rows.append(ModelRow("detector", name, arch, count(make_detector(name, config)), paper, note))
+            rows.append(
+                ModelRow("detector", name, arch, count(make_detector(name, config)), paper, note)
+            )
     return rows
 
 
@@ -66,11 +78,16 @@ def format_rows(rows: list[ModelRow], profile: str) -> str:
     """Markdown table; at paper sizes, differences from the paper are footnoted."""
     notes = {r.name: r.note for r in rows if r.note and profile == "paper"}  # in first-seen order
     marks = {name: f" [{i}]" for i, name in enumerate(notes, 1)}
-    lines = [f"| family | name | reads | parameters ({profile}) | paper |", "|---|---|---|---:|---:|"]
+    lines = [
+        f"| family | name | reads | parameters ({profile}) | paper |",
+        "|---|---|---|---:|---:|",
+    ]
     for r in rows:
         paper = (f"{r.paper / 1e6:.2f}M" if r.paper else "-") + marks.get(r.name, "")
         lines.append(f"| {r.family} | {r.name} | {r.reads} | {r.parameters / 1e6:.2f}M | {paper} |")
-    lines += [""] * bool(notes) + [f"[{i}] {name}: {note}" for i, (name, note) in enumerate(notes.items(), 1)]
+    lines += [""] * bool(notes) + [
+        f"[{i}] {name}: {note}" for i, (name, note) in enumerate(notes.items(), 1)
+    ]
     return "\n".join(lines)
 
 
@@ -79,7 +96,9 @@ def models(profile: Literal["mini", "paper"] = "paper", as_json: bool = False) -
     import json
 
     rows = model_rows(profile)
-    print(json.dumps([r.to_dict() for r in rows], indent=2) if as_json else format_rows(rows, profile))
+    print(
+        json.dumps([r.to_dict() for r in rows], indent=2) if as_json else format_rows(rows, profile)
+    )
     return 0
 
 

@@ -35,7 +35,9 @@ MAX_DELTA = 0.1  # metres per unit action of pd_ee_delta_pos
 logger = logging.getLogger(__name__)
 
 
-def move_to_safe_pose(env: gym.Env, gripper: float, max_steps: int = 40, tol: float = 0.01) -> list[Any]:
+def move_to_safe_pose(
+    env: gym.Env, gripper: float, max_steps: int = 40, tol: float = 0.01
+) -> list[Any]:
     """The pilot's correction: bring the TCP above the table centre, the gripper held as it is."""
     base = env.unwrapped
     frames = []
@@ -64,10 +66,16 @@ class AEDMonitor(gym.Wrapper):
     """
 
     def __init__(
-        self, env: gym.Env, policy: Any, detector: Any, demos: dict[str, Any], threshold: float,
-        on_alarm: OnAlarm = "stop", correction: Callable[[gym.Env, float], list[Any]] | None = None,
+        self,
+        env: gym.Env,
+        policy: Any,
+        detector: Any,
+        demos: dict[str, Any],
+        threshold: float,
+        on_alarm: OnAlarm = "stop",
+        correction: Callable[[gym.Env, float], list[Any]] | None = None,
         max_corrections: int = 1,
-    ):  # fmt: skip
+    ):
         super().__init__(env)
         if on_alarm not in ("stop", "correct", "none"):
             raise ValueError(f"on_alarm={on_alarm!r}: stop, correct or none")
@@ -91,7 +99,12 @@ class AEDMonitor(gym.Wrapper):
         self.next_action = action
         self.scores.append(score)
         alarm = score >= self.threshold
-        return {"aed_score": score, "aed_alarm": alarm, "aed_latency_s": latency, "aed_policy_latency_s": policy_latency}
+        return {
+            "aed_score": score,
+            "aed_alarm": alarm,
+            "aed_latency_s": latency,
+            "aed_policy_latency_s": policy_latency,
+        }
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
@@ -136,9 +149,15 @@ def monitor(
     on_alarm: OnAlarm = "stop",
     num_demos: int = 5,
     runs: Path = Path("runs"),
-    out: Annotated[Path | None, tyro.conf.arg(help="video path (default runs/<task>/<policy>/monitor/<detector>_env<k>.mp4)")] = None,
+    out: Annotated[
+        Path | None,
+        tyro.conf.arg(
+            help="video path (default runs/<task>/<policy>/monitor/<detector>_env<k>.mp4)"
+        ),
+    ] = None,
 ) -> int:
-    """Run a policy with a detector beside it in one environment and write a video with the score curve.
+    """Run a policy with a detector beside it in one environment and write a video with the score
+    curve.
 
     The alarm threshold: `threshold`, else the detector's calibration on the policy for
     `alpha` (`aed calibrate`), else 0.9."""
@@ -156,15 +175,31 @@ def monitor(
         calibration = read_calibration(path, loaded.model.checkpoint_sha256)
         threshold = threshold_at(calibration, alpha) if calibration is not None else None
         if threshold is None:
-            logger.warning("%s: no calibrated threshold for alpha %s; alarms at 0.9", path.parent, alpha)
+            logger.warning(
+                "%s: no calibrated threshold for alpha %s; alarms at 0.9", path.parent, alpha
+            )
             threshold = 0.9
     demos = Demonstrations(layout.data(task, split), split, num_demos)
     if env_index not in demos:
-        raise ValueError(f"env_index={env_index}: no {split} demonstrations in runs/{task}/data/{split}")
-    env = AEDMonitor(gym.make(aed_tasks.env_id(task, split), env_index=env_index), policy_model, loaded.model,
-                     demos[env_index], threshold, on_alarm)  # fmt: skip
+        raise ValueError(
+            f"env_index={env_index}: no {split} demonstrations in runs/{task}/data/{split}"
+        )
+    env = AEDMonitor(
+        gym.make(aed_tasks.env_id(task, split), env_index=env_index),
+        policy_model,
+        loaded.model,
+        demos[env_index],
+        threshold,
+        on_alarm,
+    )
     obs, info = env.reset(seed=seed)
-    frames, latencies, policy_latencies, env_steps, done = [_rgb(obs)], [info["aed_latency_s"]], [], [], False
+    frames, latencies, policy_latencies, env_steps, done = (
+        [_rgb(obs)],
+        [info["aed_latency_s"]],
+        [],
+        [],
+        False,
+    )
     while not done:
         obs, _, terminated, truncated, info = env.step(None)
         frames.append(_rgb(obs))
@@ -176,10 +211,13 @@ def monitor(
     out = Path(out or Path(runs) / task / policy / "monitor" / f"{detector}_env{env_index:03d}.mp4")
     write_video(out, frames, env.scores, threshold)
     success = bool(np.asarray(info["success"]).any())
-    print(f"{out}: {len(frames)} frames, success={success}, alarms={env.alarms}, threshold {threshold:.3g}, "
-          f"detector step median {1e3 * np.median(latencies):.2f} ms, policy act {1e3 * np.median(policy_latencies):.2f} ms, "
-          f"env step {1e3 * np.median(env_steps):.1f} ms (detector overhead "
-          f"{100 * np.median(latencies) / np.median(env_steps):.1f}% of the env step)")  # fmt: skip
+    print(
+        f"{out}: {len(frames)} frames, success={success}, alarms={env.alarms}, "
+        f"threshold {threshold:.3g}, detector step median {1e3 * np.median(latencies):.2f} ms, "
+        f"policy act {1e3 * np.median(policy_latencies):.2f} ms, "
+        f"env step {1e3 * np.median(env_steps):.1f} ms (detector overhead "
+        f"{100 * np.median(latencies) / np.median(env_steps):.1f}% of the env step)"
+    )
     return 0
 
 
@@ -188,14 +226,24 @@ def _rgb(obs: Any) -> np.ndarray:
     return (rgb.cpu().numpy() if hasattr(rgb, "cpu") else np.asarray(rgb))[0]
 
 
-def write_video(path: Path, frames: list[np.ndarray], scores: list[float], threshold: float, scale: int = 3, fps: int = 20) -> None:
+def write_video(
+    path: Path,
+    frames: list[np.ndarray],
+    scores: list[float],
+    threshold: float,
+    scale: int = 3,
+    fps: int = 20,
+) -> None:
     """Camera frames with the score curve (and the threshold) drawn under them, as MP4."""
     import cv2
 
     height, width = frames[0].shape[:2]
     w, h, plot_h = width * scale, height * scale, 80 * scale // 2
     top = max(max(scores), threshold, 1e-6) * 1.05
-    points = [(int(i * (w - 1) / max(len(scores) - 1, 1)), int(plot_h - 1 - s / top * (plot_h - 1))) for i, s in enumerate(scores)]
+    points = [
+        (int(i * (w - 1) / max(len(scores) - 1, 1)), int(plot_h - 1 - s / top * (plot_h - 1)))
+        for i, s in enumerate(scores)
+    ]
     path.parent.mkdir(parents=True, exist_ok=True)
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h + plot_h))
     try:
@@ -206,7 +254,9 @@ def write_video(path: Path, frames: list[np.ndarray], scores: list[float], thres
             y = int(plot_h - 1 - threshold / top * (plot_h - 1))
             cv2.line(plot, (0, y), (w - 1, y), (60, 60, 220), 1)
             if t > 0:
-                cv2.polylines(plot, [np.asarray(points[: t + 1], dtype=np.int32)], False, (40, 40, 40), 2)
+                cv2.polylines(
+                    plot, [np.asarray(points[: t + 1], dtype=np.int32)], False, (40, 40, 40), 2
+                )
             writer.write(cv2.cvtColor(canvas, cv2.COLOR_RGB2BGR))
     finally:
         writer.release()

@@ -55,13 +55,43 @@ class Protocol:
 
 
 PROTOCOLS: dict[str, Protocol] = {
-    "paper": Protocol(train_envs=0, calibration_envs=4, novel_envs=0, num_demos=5, num_successes=20, num_failures=20,
-                      labelled=5, rollouts=20, calibration_rollouts=20, policies=("naive_dc", "dct", "scan")),
-    "mini": Protocol(train_envs=4, calibration_envs=3, novel_envs=4, num_demos=5, num_successes=10, num_failures=10,
-                     labelled=1, rollouts=5, calibration_rollouts=5, policies=("naive_dc", "dct", "scan")),
-    "demo": Protocol(train_envs=5, calibration_envs=3, novel_envs=6, num_demos=3, num_successes=4, num_failures=3,
-                     labelled=1, rollouts=4, calibration_rollouts=4, policies=("dct",)),
-}  # fmt: skip
+    "paper": Protocol(
+        train_envs=0,
+        calibration_envs=4,
+        novel_envs=0,
+        num_demos=5,
+        num_successes=20,
+        num_failures=20,
+        labelled=5,
+        rollouts=20,
+        calibration_rollouts=20,
+        policies=("naive_dc", "dct", "scan"),
+    ),
+    "mini": Protocol(
+        train_envs=4,
+        calibration_envs=3,
+        novel_envs=4,
+        num_demos=5,
+        num_successes=10,
+        num_failures=10,
+        labelled=1,
+        rollouts=5,
+        calibration_rollouts=5,
+        policies=("naive_dc", "dct", "scan"),
+    ),
+    "demo": Protocol(
+        train_envs=5,
+        calibration_envs=3,
+        novel_envs=6,
+        num_demos=3,
+        num_successes=4,
+        num_failures=3,
+        labelled=1,
+        rollouts=4,
+        calibration_rollouts=4,
+        policies=("dct",),
+    ),
+}
 
 
 def protocol(profile: str) -> Protocol:

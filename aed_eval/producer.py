@@ -76,7 +76,9 @@ class EpisodeRunner:
     def env(self, shard: Any) -> Any:
         raise NotImplementedError
 
-    def episode(self, shard: Any, k: int) -> tuple[Episode, trajectory.RecordedSteps, dict[str, Any]]:
+    def episode(
+        self, shard: Any, k: int
+    ) -> tuple[Episode, trajectory.RecordedSteps, dict[str, Any]]:
         raise NotImplementedError
 
     def source(self) -> dict[str, Any]:
@@ -88,8 +90,11 @@ class EpisodeRunner:
     def close(self) -> None:
         pass
 
-    def run(self, shard: Any, tick: Callable[[int], None] | None = None, out: Path | None = None) -> ShardResult:
-        """Record the shard's episodes into `<out>/<stem>.h5.tmp` (default: the config's), then commit it."""
+    def run(
+        self, shard: Any, tick: Callable[[int], None] | None = None, out: Path | None = None
+    ) -> ShardResult:
+        """Record the shard's episodes into `<out>/<stem>.h5.tmp` (default: the config's), then
+        commit it."""
         out = Path(out if out is not None else self.cfg.out)
         start = time.perf_counter()
         steps = successes = attempts = 0
@@ -104,10 +109,14 @@ class EpisodeRunner:
                     tick(1)
             writer.commit(trajectory.env_info(self.env(shard)), shard.to_dict(), **self.source())
         episodes = len(shard.indices())
-        return ShardResult(shard.stem, episodes, steps, successes, attempts, time.perf_counter() - start)
+        return ShardResult(
+            shard.stem, episodes, steps, successes, attempts, time.perf_counter() - start
+        )
 
 
-def prepare_folder(out: Path, identity: dict[str, Any], config: dict[str, Any], shards: list[ShardPlan]) -> list[ShardPlan]:
+def prepare_folder(
+    out: Path, identity: dict[str, Any], config: dict[str, Any], shards: list[ShardPlan]
+) -> list[ShardPlan]:
     """Check the folder (manifest, every committed shard) and return the shards still to run.
 
     A corrupt or foreign file stops here with its name. A committed shard whose content differs
@@ -117,7 +126,9 @@ def prepare_folder(out: Path, identity: dict[str, Any], config: dict[str, Any], 
     stems = [s.stem for s in shards]
     repeated = sorted({stem for stem in stems if stems.count(stem) > 1})
     if repeated:
-        raise ValueError(f"the plan names shards {repeated} more than once (an environment given twice?)")
+        raise ValueError(
+            f"the plan names shards {repeated} more than once (an environment given twice?)"
+        )
     out.mkdir(parents=True, exist_ok=True)
     manifest = trajectory.read_manifest(out)
     if manifest is not None:
@@ -125,9 +136,13 @@ def prepare_folder(out: Path, identity: dict[str, Any], config: dict[str, Any], 
         for key, value in identity.items():
             if old.get(key) != value:
                 raise trajectory.CollectionError(
-                    out / trajectory.MANIFEST, f"was collected with {key}={old.get(key)!r}, this run asks {value!r}; "
-                    "use another --out or the same setting")  # fmt: skip
-    collection = trajectory.scan_collection(out, check="full")  # every shard, its sha256 too, before any write
+                    out / trajectory.MANIFEST,
+                    f"was collected with {key}={old.get(key)!r}, this run asks {value!r}; "
+                    "use another --out or the same setting",
+                )
+    collection = trajectory.scan_collection(
+        out, check="full"
+    )  # every shard, its sha256 too, before any write
     done = {s.json_path.stem: s for s in collection.shards}
     planned = set(stems)
     todo = []
@@ -137,14 +152,20 @@ def prepare_folder(out: Path, identity: dict[str, Any], config: dict[str, Any], 
             todo.append(shard)
         elif info.shard != shard.to_dict():
             raise trajectory.CollectionError(
-                info.json_path, f"holds shard {info.shard}, this run plans {shard.to_dict()}; delete it or "
-                "keep the earlier counts")  # fmt: skip
-    trajectory.write_json_atomic(out / trajectory.MANIFEST, {"format": trajectory.FORMAT, "identity": identity,
-                                                             "config": config})  # fmt: skip
+                info.json_path,
+                f"holds shard {info.shard}, this run plans {shard.to_dict()}; delete it or "
+                "keep the earlier counts",
+            )
+    trajectory.write_json_atomic(
+        out / trajectory.MANIFEST,
+        {"format": trajectory.FORMAT, "identity": identity, "config": config},
+    )
     for leftover in collection.temporaries + collection.uncommitted:
         stem = leftover.name.split(".")[0]
         if stem in planned:
-            logger.info("removing %s (left by an interrupted run; its shard is redone)", leftover.name)
+            logger.info(
+                "removing %s (left by an interrupted run; its shard is redone)", leftover.name
+            )
             leftover.unlink()
     extra = sorted(set(done) - planned)
     if extra:
@@ -152,9 +173,15 @@ def prepare_folder(out: Path, identity: dict[str, Any], config: dict[str, Any], 
     return todo
 
 
-def produce(cfg: Any, shards: list[ShardPlan], runner_type: type[EpisodeRunner], desc: str,
-            on_done: Callable[[ShardResult], None] | None = None, runner: EpisodeRunner | None = None,
-            runner_args: Iterable[Any] = ()) -> ProductionSummary:  # fmt: skip
+def produce(
+    cfg: Any,
+    shards: list[ShardPlan],
+    runner_type: type[EpisodeRunner],
+    desc: str,
+    on_done: Callable[[ShardResult], None] | None = None,
+    runner: EpisodeRunner | None = None,
+    runner_args: Iterable[Any] = (),
+) -> ProductionSummary:
     """Record every planned shard of `cfg` (its out, identity, workers, executor) not committed yet.
 
     `runner` (one worker only) reuses the envs of an earlier call; `runner_args` follow `cfg`
@@ -165,15 +192,31 @@ def produce(cfg: Any, shards: list[ShardPlan], runner_type: type[EpisodeRunner],
     todo = prepare_folder(Path(cfg.out), cfg.identity(), cfg.to_dict(), shards)
     summary = ProductionSummary(Path(cfg.out), len(shards), len(shards) - len(todo))
     total = sum(len(s.indices()) for s in todo)
-    logger.info("%s: %d shards planned, %d already committed, %d episodes to record in %s",
-                desc, len(shards), summary.skipped, total, cfg.out)  # fmt: skip
+    logger.info(
+        "%s: %d shards planned, %d already committed, %d episodes to record in %s",
+        desc,
+        len(shards),
+        summary.skipped,
+        total,
+        cfg.out,
+    )
 
     def done(result: ShardResult) -> None:
         summary.results.append(result)
         if on_done is not None:
             on_done(result)
 
-    with tqdm(total=total, unit="ep", desc=desc, disable=not cfg.progress, dynamic_ncols=True) as bar:
-        execute(todo, partial(runner_type, cfg, *runner_args), on_done=done, workers=cfg.workers,
-                executor=cfg.executor, ray_address=cfg.ray_address, progress=bar, runner=runner)  # fmt: skip
+    with tqdm(
+        total=total, unit="ep", desc=desc, disable=not cfg.progress, dynamic_ncols=True
+    ) as bar:
+        execute(
+            todo,
+            partial(runner_type, cfg, *runner_args),
+            on_done=done,
+            workers=cfg.workers,
+            executor=cfg.executor,
+            ray_address=cfg.ray_address,
+            progress=bar,
+            runner=runner,
+        )
     return summary

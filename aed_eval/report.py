@@ -55,10 +55,14 @@ class ReportConfig:
         if not self.results:
             found = sorted(Path("runs").glob("*/*/eval/results.json"))
             if not found:
-                raise FileNotFoundError("runs/*/*/eval/results.json: no evaluations found; run `aed evaluate` first")
+                raise FileNotFoundError(
+                    "runs/*/*/eval/results.json: no evaluations found; run `aed evaluate` first"
+                )
         missing = [str(p) for p in found if not p.is_file()]
         if missing:
-            raise FileNotFoundError(f"{', '.join(missing)}: no such results file (run `aed evaluate`)")
+            raise FileNotFoundError(
+                f"{', '.join(missing)}: no such results file (run `aed evaluate`)"
+            )
         self.paths = found
         self.out = Path(self.out)
 
@@ -70,7 +74,10 @@ def load_case(path: Path) -> dict[str, Any]:
         raise ValueError(f"{path}: corrupt results ({e}); re-run aed evaluate") from e
     for key in ("task", "policy", "detectors", "references", "rollouts", "endings"):
         if not isinstance(body, dict) or key not in body:
-            raise ValueError(f"{path}: not an `aed evaluate` results file of this version (no {key!r}); re-run aed evaluate")
+            raise ValueError(
+                f"{path}: not an `aed evaluate` results file of this version (no {key!r}); "
+                "re-run aed evaluate"
+            )
     body["path"] = str(path)
     return body
 
@@ -81,11 +88,15 @@ def check_cases(cases: list[dict[str, Any]]) -> list[str]:
     for case in cases:
         key = (case["task"], case["policy"])
         if key in seen:
-            raise ValueError(f"{case['path']} and {seen[key]}: two results for {key[0]} / {key[1]}; give one")
+            raise ValueError(
+                f"{case['path']} and {seen[key]}: two results for {key[0]} / {key[1]}; give one"
+            )
         seen[key] = case["path"]
     common = [d for d in cases[0]["detectors"] if all(d in c["detectors"] for c in cases)]
     if not common:
-        raise ValueError(f"{', '.join(c['path'] for c in cases)}: no detector evaluated in every case")
+        raise ValueError(
+            f"{', '.join(c['path'] for c in cases)}: no detector evaluated in every case"
+        )
     for case in cases:
         extra = sorted(set(case["detectors"]) - set(common))
         if extra:
@@ -97,7 +108,9 @@ def rankable(case: dict[str, Any], ending: str) -> bool:
     return ending in case["endings"] and not too_small(case["rollouts"]["outcomes"][ending])
 
 
-def summary_rows(cases: list[dict[str, Any]], ranked: list[str], metric: str, ending: str) -> dict[str, dict[str, float]]:
+def summary_rows(
+    cases: list[dict[str, Any]], ranked: list[str], metric: str, ending: str
+) -> dict[str, dict[str, float]]:
     """Top-1 counts, average rank and average performance difference of the ranked detectors,
     over the cases large enough to rank."""
     top1 = dict.fromkeys(ranked, 0)
@@ -118,18 +131,29 @@ def summary_rows(cases: list[dict[str, Any]], ranked: list[str], metric: str, en
             top1[d] += int(values[i] == best)
             ranks[d].append(float(rank[i]))
             diffs[d].append(float((values[i] - worst) / worst) if worst > 0 else float("nan"))
-    return {d: {"top1": top1[d], "avg_rank": float(np.mean(ranks[d])) if ranks[d] else float("nan"),
-                "avg_diff": float(np.nanmean(diffs[d])) if np.isfinite(diffs[d]).any() else float("nan")}
-            for d in ranked}  # fmt: skip
+    return {
+        d: {
+            "top1": top1[d],
+            "avg_rank": float(np.mean(ranks[d])) if ranks[d] else float("nan"),
+            "avg_diff": float(np.nanmean(diffs[d]))
+            if np.isfinite(diffs[d]).any()
+            else float("nan"),
+        }
+        for d in ranked
+    }
 
 
 def best_marks(cells: dict[str, dict[str, Any]], ranked: list[str], metric: str) -> dict[str, str]:
     """`**` around the best ranked detector; `≈` when its interval overlaps the runner-up's."""
-    scored = sorted((d for d in ranked if np.isfinite(cells[d][metric])), key=lambda d: -cells[d][metric])
+    scored = sorted(
+        (d for d in ranked if np.isfinite(cells[d][metric])), key=lambda d: -cells[d][metric]
+    )
     if not scored:
         return {}
     marks = {scored[0]: "best"}
-    if len(scored) > 1 and metrics.intervals_overlap(cells[scored[0]][f"{metric}_interval"], cells[scored[1]][f"{metric}_interval"]):
+    if len(scored) > 1 and metrics.intervals_overlap(
+        cells[scored[0]][f"{metric}_interval"], cells[scored[1]][f"{metric}_interval"]
+    ):
         marks[scored[0]] = "tied"
     return marks
 
@@ -138,21 +162,30 @@ def _f(x: Any, digits: int = 3) -> str:
     return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{digits}f}"
 
 
-def metric_table(cases: list[dict[str, Any]], names: list[str], detectors: list[str], metric: str, ending: str) -> tuple[list[str], dict]:
+def metric_table(
+    cases: list[dict[str, Any]], names: list[str], detectors: list[str], metric: str, ending: str
+) -> tuple[list[str], dict]:
     """One metric under one ending: a row per case, the ranked detectors, then the others."""
     ranked = [d for d in detectors if d in PAPER_DETECTORS]
     others = [d for d in detectors if d not in PAPER_DETECTORS]
     references = list(cases[0]["references"])
     columns = [*ranked, *others, *(f"*{r}*" for r in references)]
-    lines = [f"### {metric.upper()}, {ENDING_TITLES[ending]}", "",
-             "| case | " + " | ".join(columns) + " |", "|---|" + "---:|" * len(columns)]  # fmt: skip
+    lines = [
+        f"### {metric.upper()}, {ENDING_TITLES[ending]}",
+        "",
+        "| case | " + " | ".join(columns) + " |",
+        "|---|" + "---:|" * len(columns),
+    ]
     table = {}
     for name, case in zip(names, cases, strict=True):
         if ending not in case["endings"]:
             continue
         cells = {d: case["detectors"][d][ending] for d in detectors}
         cells.update({f"*{r}*": case["references"][r][ending] for r in references})
-        table[name] = {c: {metric: cells[c][metric], "interval": cells[c][f"{metric}_interval"]} for c in columns}
+        table[name] = {
+            c: {metric: cells[c][metric], "interval": cells[c][f"{metric}_interval"]}
+            for c in columns
+        }
         marks = best_marks(cells, ranked, metric)
         texts = []
         for c in columns:
@@ -163,66 +196,118 @@ def metric_table(cases: list[dict[str, Any]], names: list[str], detectors: list[
         flag = " ‡" if not rankable(case, ending) else ""
         lines.append(f"| {name}{flag} | " + " | ".join(texts) + " |")
     summary = summary_rows(cases, ranked, metric, ending)
-    for key, label in (("top1", "Top-1 count"), ("avg_rank", "Avg. rank"), ("avg_diff", "Avg. perf. diff.")):
-        lines.append(f"| *{label}* | " + " | ".join(_f(summary[d][key], 0 if key == "top1" else 2) for d in ranked)
-                     + " |" * (1 + len(columns) - len(ranked)))  # fmt: skip
+    for key, label in (
+        ("top1", "Top-1 count"),
+        ("avg_rank", "Avg. rank"),
+        ("avg_diff", "Avg. perf. diff."),
+    ):
+        lines.append(
+            f"| *{label}* | "
+            + " | ".join(_f(summary[d][key], 0 if key == "top1" else 2) for d in ranked)
+            + " |" * (1 + len(columns) - len(ranked))
+        )
     return lines + [""], {"table": table, "summary": summary}
 
 
 def build_report(cases: list[dict[str, Any]], detectors: list[str]) -> tuple[dict[str, Any], str]:
     names = [f"{c['task']} / {c['policy']}" for c in cases]
     endings = [e for e in ("horizon", "success") if any(e in c["endings"] for c in cases)]
-    report: dict[str, Any] = {"cases": names, "detectors": detectors, "ranked": [d for d in detectors if d in PAPER_DETECTORS],
-                              "metrics": {}, "policies": {}, "calibrated": {}, "labelled": {}}  # fmt: skip
-    lines = ["# AED report", "",
-             "Rollout level, novel environments; 95% bootstrap intervals over rollouts (resampled within each outcome). "
-             "Bold: the best of the paper's five detectors, `≈` when its interval overlaps the runner-up's. "
-             f"‡: fewer than {MIN_PER_OUTCOME} rollouts of an outcome, too small to rank (left out of the summary rows). "
-             "rnd_oe and the references stand outside the ranking.", ""]  # fmt: skip
+    report: dict[str, Any] = {
+        "cases": names,
+        "detectors": detectors,
+        "ranked": [d for d in detectors if d in PAPER_DETECTORS],
+        "metrics": {},
+        "policies": {},
+        "calibrated": {},
+        "labelled": {},
+    }
+    lines = [
+        "# AED report",
+        "",
+        "Rollout level, novel environments; 95% bootstrap intervals over rollouts "
+        "(resampled within each outcome). Bold: the best of the paper's five detectors, "
+        f"`≈` when its interval overlaps the runner-up's. ‡: fewer than {MIN_PER_OUTCOME} "
+        "rollouts of an outcome, too small to rank (left out of the summary rows). "
+        "rnd_oe and the references stand outside the ranking.",
+        "",
+    ]
     if any(c.get("diagnostic") for c in cases):
-        lines += ["**DIAGNOSTIC: some cases were scored on environments a model trained on** "
-                  f"({', '.join(n for n, c in zip(names, cases, strict=True) if c.get('diagnostic'))}).", ""]  # fmt: skip
+        lines += [
+            "**DIAGNOSTIC: some cases were scored on environments a model trained on** "
+            f"({', '.join(n for n, c in zip(names, cases, strict=True) if c.get('diagnostic'))}).",
+            "",
+        ]
     for ending in endings:
         lines += [f"## {ENDING_TITLES[ending].capitalize()}", ""]
         for metric in METRICS:
             table_lines, body = metric_table(cases, names, detectors, metric, ending)
             lines += table_lines
             report["metrics"].setdefault(ending, {})[metric] = body
-    lines += ["## Policy success rates (novel environments)", "",
-              "| case | success rate [95%] | successes / rollouts | per environment | horizon | median steps success / failure |",
-              "|---|---:|---:|---:|---:|---|"]  # fmt: skip
+    lines += [
+        "## Policy success rates (novel environments)",
+        "",
+        (
+            "| case | success rate [95%] | successes / rollouts | per environment | horizon | "
+            "median steps success / failure |"
+        ),
+        "|---|---:|---:|---:|---:|---|",
+    ]
     for name, case in zip(names, cases, strict=True):
         r = case["rollouts"]
         sr, lengths = r["success_rate"], r["lengths"][case["ending"]]
         report["policies"][name] = r
-        lines.append(f"| {name} | {with_interval(100 * sr['rate'], [100 * x for x in sr['interval']], 1)}% | "
-                     f"{sr['successes']} / {r['count']} | {100 * sr['mean']:.1f} ± {100 * sr['std']:.1f}% | {r['horizon']} | "
-                     f"{lengths['success'].get('median', '-')} / {lengths['failure'].get('median', '-')} |")  # fmt: skip
-    lines += ["", "## At the calibrated thresholds", "",
-              "Calibration `policy@a`: the policy's successful rollouts in held-out base environments, alpha a; "
-              "`expert@a`: the expert's successes there (the earlier protocol). FAR: the false-alarm rate realised on "
-              "the novel successes [Wilson 95%], to compare with alpha.", "",
-              "| case | detector | calibration | FAR | TPR | TNR | bal. acc. | detection step |",
-              "|---|---|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+        lines.append(
+            f"| {name} | {with_interval(100 * sr['rate'], [100 * x for x in sr['interval']], 1)}% "
+            f"| {sr['successes']} / {r['count']} | {100 * sr['mean']:.1f} ± {100 * sr['std']:.1f}% "
+            f"| {r['horizon']} | "
+            f"{lengths['success'].get('median', '-')} / {lengths['failure'].get('median', '-')} |"
+        )
+    lines += [
+        "",
+        "## At the calibrated thresholds",
+        "",
+        "Calibration `policy@a`: the policy's successful rollouts in held-out base environments, "
+        "alpha a; `expert@a`: the expert's successes there (the earlier protocol). FAR: "
+        "the false-alarm rate realised on the novel successes [Wilson 95%], to compare with alpha.",
+        "",
+        "| case | detector | calibration | FAR | TPR | TNR | bal. acc. | detection step |",
+        "|---|---|---|---:|---:|---:|---:|---:|",
+    ]
     for name, case in zip(names, cases, strict=True):
         for d in detectors:
             calibrated = case["detectors"][d][case["ending"]].get("calibrated", {})
             report["calibrated"].setdefault(name, {})[d] = calibrated
             for key, rates in calibrated.items():
-                lines.append(f"| {name} | {d} | {key} | {with_interval(rates['false_alarm_rate'], rates['false_alarm_interval'], 2)} | "
-                             f"{_f(rates['tpr'], 2)} | {_f(rates['tnr'], 2)} | {_f(rates['balanced_accuracy'], 2)} | "
-                             f"{_f(rates['detection_step_mean'], 0)} |")  # fmt: skip
-    lines += ["", "## Labelled novel episodes (expert successes and injected failures)", "",
-              "| case | detector | frame AUROC [95%] | delays early/on time/late/missed |", "|---|---|---:|---|"]  # fmt: skip
+                lines.append(
+                    f"| {name} | {d} | {key} | "
+                    f"{with_interval(rates['false_alarm_rate'], rates['false_alarm_interval'], 2)} "
+                    f"| {_f(rates['tpr'], 2)} | {_f(rates['tnr'], 2)} | "
+                    f"{_f(rates['balanced_accuracy'], 2)} | {_f(rates['detection_step_mean'], 0)} |"
+                )
+    lines += [
+        "",
+        "## Labelled novel episodes (expert successes and injected failures)",
+        "",
+        "| case | detector | frame AUROC [95%] | delays early/on time/late/missed |",
+        "|---|---|---:|---|",
+    ]
     for name, case in zip(names, cases, strict=True):
         for d in detectors:
             lab = case["detectors"][d].get("labelled")
             if not lab:
                 continue
             report["labelled"].setdefault(name, {})[d] = lab
-            delays = "; ".join(f"{k}: " + "/".join(str(v["counts"][c]) for c in metrics.DELAY_CLASSES)
-                               for k, v in lab.get("delays", {}).items()) or "-"  # fmt: skip
-            lines.append(f"| {name} | {d} | {with_interval(lab['frame_auroc'], lab.get('frame_auroc_interval'))} | {delays} |")
+            delays = (
+                "; ".join(
+                    f"{k}: " + "/".join(str(v["counts"][c]) for c in metrics.DELAY_CLASSES)
+                    for k, v in lab.get("delays", {}).items()
+                )
+                or "-"
+            )
+            lines.append(
+                f"| {name} | {d} | "
+                f"{with_interval(lab['frame_auroc'], lab.get('frame_auroc_interval'))} | {delays} |"
+            )
     return report, "\n".join(lines) + "\n"
 
 
@@ -258,9 +343,18 @@ def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
     fig, ax = plt.subplots(figsize=(4.5, 4.2))
     for name, row in rows.items():
         cell = row[case["ending"]]
-        ax.plot(cell["roc"]["fpr"], cell["roc"]["tpr"], "--" if "(ref.)" in name else "-", label=f"{name} ({_f(cell['auroc'], 2)})")
+        ax.plot(
+            cell["roc"]["fpr"],
+            cell["roc"]["tpr"],
+            "--" if "(ref.)" in name else "-",
+            label=f"{name} ({_f(cell['auroc'], 2)})",
+        )
     ax.plot([0, 1], [0, 1], ":", color="grey")
-    ax.set(xlabel="false positive rate", ylabel="true positive rate", title=f"{case['task']} / {case['policy']}")
+    ax.set(
+        xlabel="false positive rate",
+        ylabel="true positive rate",
+        title=f"{case['task']} / {case['policy']}",
+    )
     ax.legend(fontsize=7)
     fig.tight_layout()
     written.append(out / f"roc_{stem}.png")
@@ -272,7 +366,9 @@ def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
         logger.warning("%s: missing, no score-vs-time plot", scores_path)
         return written
     scored = json.loads(scores_path.read_text())
-    group = scored.get("labelled") if scored.get("labelled", {}).get("episodes") else scored["rollouts"]
+    group = (
+        scored.get("labelled") if scored.get("labelled", {}).get("episodes") else scored["rollouts"]
+    )
     episodes = group["episodes"]
     success = next((i for i, e in enumerate(episodes) if e["success"]), None)
     failure = next((i for i, e in enumerate(episodes) if not e["success"]), None)
@@ -286,7 +382,11 @@ def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
         onset = episodes[index].get("onset_frame")
         if onset is not None:
             ax.axvline(onset, color="red", linestyle="--", label="labelled onset")
-        ax.set(xlabel="frame", ylabel="score", title=f"{title} episode (env {episodes[index]['env_index']})")
+        ax.set(
+            xlabel="frame",
+            ylabel="score",
+            title=f"{title} episode (env {episodes[index]['env_index']})",
+        )
     axes[1].legend(fontsize=7)
     fig.tight_layout()
     written.append(out / f"scores_{stem}.png")

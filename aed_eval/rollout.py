@@ -41,7 +41,17 @@ from aed_tasks import trajectory
 logger = logging.getLogger(__name__)
 
 ROLE = "policy_rollout"
-IDENTITY = ("task", "split", "policy", "policy_sha256", "seed", "num_demos", "shard_size", "horizon", "ending")
+IDENTITY = (
+    "task",
+    "split",
+    "policy",
+    "policy_sha256",
+    "seed",
+    "num_demos",
+    "shard_size",
+    "horizon",
+    "ending",
+)
 ENDINGS = ("horizon", "success")
 
 
@@ -111,19 +121,39 @@ class RolloutConfig:
         bad = [i for i in self.envs if not 0 <= i < size]
         if bad:
             raise ValueError(f"envs={bad}: {self.task}-{self.split} has environments 0..{size - 1}")
-        self.checkpoint, self.demos, self.out = Path(self.checkpoint), Path(self.demos), Path(self.out)
+        self.checkpoint, self.demos, self.out = (
+            Path(self.checkpoint),
+            Path(self.demos),
+            Path(self.out),
+        )
 
     @classmethod
-    def from_preset(cls, task: str = "PressButton", policy: str = "naive_dc", split: str = "novel",
-                    profile: str = "mini", runs: Path = Path("runs"), **overrides: Any) -> RolloutConfig:  # fmt: skip
+    def from_preset(
+        cls,
+        task: str = "PressButton",
+        policy: str = "naive_dc",
+        split: str = "novel",
+        profile: str = "mini",
+        runs: Path = Path("runs"),
+        **overrides: Any,
+    ) -> RolloutConfig:
         """The profile's counts, the task's evaluation horizon, the layout's paths under `runs`,
         then `overrides`."""
         counts, task_cls, layout = protocol(profile), task_class(task), RunLayout(runs)
         task = task_cls.task_name
-        preset = {"task": task, "policy": policy, "split": split, "profile": profile,
-                  "checkpoint": layout.policy(task, policy), "demos": layout.data(task, split),
-                  "out": layout.rollouts(task, policy, split), "num_envs": counts.novel_envs or task_cls.catalogue_sizes[split],
-                  "num_episodes": counts.rollouts, "num_demos": counts.num_demos, "horizon": task_cls.eval_horizon}  # fmt: skip
+        preset = {
+            "task": task,
+            "policy": policy,
+            "split": split,
+            "profile": profile,
+            "checkpoint": layout.policy(task, policy),
+            "demos": layout.data(task, split),
+            "out": layout.rollouts(task, policy, split),
+            "num_envs": counts.novel_envs or task_cls.catalogue_sizes[split],
+            "num_episodes": counts.rollouts,
+            "num_demos": counts.num_demos,
+            "horizon": task_cls.eval_horizon,
+        }
         return cls(**{**preset, **overrides})
 
     def with_checkpoint_hash(self) -> RolloutConfig:
@@ -131,8 +161,10 @@ class RolloutConfig:
         from aed_models.checkpoint import file_sha256
 
         if not self.checkpoint.is_file():
-            raise FileNotFoundError(f"{self.checkpoint}: no policy checkpoint; train it with "
-                                    f"`aed train-policy --task {self.task} --policy {self.policy}`")  # fmt: skip
+            raise FileNotFoundError(
+                f"{self.checkpoint}: no policy checkpoint; train it with "
+                f"`aed train-policy --task {self.task} --policy {self.policy}`"
+            )
         return replace(self, policy_sha256=file_sha256(self.checkpoint))
 
     def identity(self) -> dict[str, Any]:
@@ -167,13 +199,17 @@ def plan_shards(cfg: RolloutConfig, available: list[int]) -> list[RolloutShard]:
     if cfg.envs:
         missing = sorted(set(cfg.envs) - set(available))
         if missing:
-            raise ValueError(f"environments {missing} have no demonstrations in {cfg.demos}; collect them with "
-                             f"`aed collect --task {cfg.task} --split {cfg.split} --envs ...`")  # fmt: skip
+            raise ValueError(
+                f"environments {missing} have no demonstrations in {cfg.demos}; collect them with "
+                f"`aed collect --task {cfg.task} --split {cfg.split} --envs ...`"
+            )
         env_indices = list(cfg.envs)
     else:
         env_indices = sorted(available)[: cfg.num_envs]
     return [
-        RolloutShard(cfg.task, cfg.split, env_index, start, min(cfg.shard_size, cfg.num_episodes - start))
+        RolloutShard(
+            cfg.task, cfg.split, env_index, start, min(cfg.shard_size, cfg.num_episodes - start)
+        )
         for env_index in env_indices
         for start in range(0, cfg.num_episodes, cfg.shard_size)
     ]
@@ -194,8 +230,12 @@ class RolloutRunner(EpisodeRunner):
 
         super().__init__(cfg if cfg.policy_sha256 else cfg.with_checkpoint_hash())
         self.policy = load_policy(cfg.checkpoint).eval() if policy is None else policy
-        env = gym.make(aed_tasks.env_id(cfg.task, cfg.split), obs_mode="rgbd", max_episode_steps=cfg.horizon,
-                       terminate_on_success=False)  # fmt: skip
+        env = gym.make(
+            aed_tasks.env_id(cfg.task, cfg.split),
+            obs_mode="rgbd",
+            max_episode_steps=cfg.horizon,
+            terminate_on_success=False,
+        )
         self._env = trajectory.make_step_recorder(env, record_env_states=True)
         self.demos = Demonstrations(Path(cfg.demos), cfg.split, cfg.num_demos)
 
@@ -206,18 +246,32 @@ class RolloutRunner(EpisodeRunner):
         self._env.close()
 
     def source(self) -> dict[str, Any]:
-        return {"source_type": "policy",
-                "source_desc": f"AED policy {self.cfg.policy} ({self.cfg.policy_sha256[:12]}), aed_eval.rollout"}  # fmt: skip
+        return {
+            "source_type": "policy",
+            "source_desc": (
+                f"AED policy {self.cfg.policy} ({self.cfg.policy_sha256[:12]}), aed_eval.rollout"
+            ),
+        }
 
-    def episode(self, shard: RolloutShard, k: int) -> tuple[Any, trajectory.RecordedSteps, dict[str, Any]]:
+    def episode(
+        self, shard: RolloutShard, k: int
+    ) -> tuple[Any, trajectory.RecordedSteps, dict[str, Any]]:
         episode = self.rollout(shard, k)
-        extra = {"role": ROLE, "policy": self.cfg.policy, "policy_sha256": self.cfg.policy_sha256, "labels_known": False,
-                 "index": k, "ending": self.cfg.ending, "success_step": first_step(episode.success),
-                 "fail_step": first_step(episode.fail)}  # fmt: skip
+        extra = {
+            "role": ROLE,
+            "policy": self.cfg.policy,
+            "policy_sha256": self.cfg.policy_sha256,
+            "labels_known": False,
+            "index": k,
+            "ending": self.cfg.ending,
+            "success_step": first_step(episode.success),
+            "fail_step": first_step(episode.fail),
+        }
         return episode, self._env.take(), extra
 
     def rollout(self, shard: RolloutShard, k: int) -> Any:
-        """One rollout: `horizon` steps, or (the paper's ending) until success or irrecoverable failure."""
+        """One rollout: `horizon` steps, or (the paper's ending) until success or irrecoverable
+        failure."""
         import torch
 
         from aed_tasks.episode import Episode
@@ -229,7 +283,9 @@ class RolloutRunner(EpisodeRunner):
             actions, success, fail, stage = [], [], [], []
             for _ in range(self.cfg.horizon):
                 action = self.policy.act(obs)
-                obs, _, _, _, info = self._env.step(action)  # terminations ignored: success is latched
+                obs, _, _, _, info = self._env.step(
+                    action
+                )  # terminations ignored: success is latched
                 actions.append(np.asarray(action, dtype=np.float32))
                 success.append(_flag(info["success"]))
                 fail.append(_flag(info["fail"]))
@@ -238,11 +294,19 @@ class RolloutRunner(EpisodeRunner):
                     break
         base = self._env.unwrapped
         return Episode(
-            env_id=base.spec.id, task=shard.task, split=shard.split, env_index=base.env_index, seed=seed,
-            demonstrator=False, control_mode=base.control_mode, actions=np.asarray(actions).reshape(-1, 4),
-            success=np.asarray(success), fail=np.asarray(fail), stage=np.asarray(stage, dtype=np.int16),
+            env_id=base.spec.id,
+            task=shard.task,
+            split=shard.split,
+            env_index=base.env_index,
+            seed=seed,
+            demonstrator=False,
+            control_mode=base.control_mode,
+            actions=np.asarray(actions).reshape(-1, 4),
+            success=np.asarray(success),
+            fail=np.asarray(fail),
+            stage=np.asarray(stage, dtype=np.int16),
             error_label=np.zeros(len(actions), dtype=np.uint8),
-        )  # fmt: skip
+        )
 
 
 def _flag(x: Any) -> bool:
@@ -258,10 +322,13 @@ def first_step(flags: np.ndarray) -> int | None:
 
 def paper_ending(entry: dict[str, Any]) -> tuple[int, bool]:
     """(actions, succeeded) of a stored rollout under the paper's ending: it stops after its
-    first success or irrecoverable-failure step, whichever comes first (never: the whole rollout)."""
+    first success or irrecoverable-failure step, whichever comes first (never: the whole
+    rollout)."""
     success, fail = entry.get("success_step"), entry.get("fail_step")
     ends = [step for step in (success, fail) if step is not None]
-    actions = min(int(entry["elapsed_steps"]), min(ends) + 1) if ends else int(entry["elapsed_steps"])
+    actions = (
+        min(int(entry["elapsed_steps"]), min(ends) + 1) if ends else int(entry["elapsed_steps"])
+    )
     return actions, success is not None and (fail is None or success <= fail)
 
 
@@ -270,19 +337,25 @@ def run_rollouts(cfg: RolloutConfig) -> ProductionSummary:
     cfg = cfg.with_checkpoint_hash()
     available = Demonstrations(Path(cfg.demos), cfg.split, cfg.num_demos).envs()
     if not available:
-        raise FileNotFoundError(f"{cfg.demos}: no {cfg.split} demonstrations; collect them with "
-                                f"`aed collect --task {cfg.task} --split {cfg.split}`")  # fmt: skip
+        raise FileNotFoundError(
+            f"{cfg.demos}: no {cfg.split} demonstrations; collect them with "
+            f"`aed collect --task {cfg.task} --split {cfg.split}`"
+        )
     if cfg.split == "base" and not cfg.envs:
         available = [e for e in available if e not in policy_train_envs(Path(cfg.checkpoint))]
         if not available:
-            raise ValueError(f"{cfg.demos}: every base environment with demonstrations trained the policy; collect more")
+            raise ValueError(
+                f"{cfg.demos}: every base environment with demonstrations trained the policy; "
+                "collect more"
+            )
     desc = f"rollout {cfg.policy} {cfg.task}-{cfg.split}"
     return produce(cfg, plan_shards(cfg, available), RolloutRunner, desc)
 
 
 @dataclass
 class StoredRollouts:
-    """A policy's stored rollouts: their refs and json entries, how they ended, and their horizon."""
+    """A policy's stored rollouts: their refs and json entries, how they ended, and their
+    horizon."""
 
     refs: list[trajectory.EpisodeRef]
     entries: list[dict[str, Any]]
@@ -290,8 +363,11 @@ class StoredRollouts:
     ending: str
 
 
-def stored_rollouts(root: Path, policy: str, policy_sha256: str | None = None, hint: str = "`aed rollout`") -> StoredRollouts:
-    """The rollouts of `policy` in `root`: one checkpoint (`policy_sha256` when given), one ending."""
+def stored_rollouts(
+    root: Path, policy: str, policy_sha256: str | None = None, hint: str = "`aed rollout`"
+) -> StoredRollouts:
+    """The rollouts of `policy` in `root`: one checkpoint (`policy_sha256` when given), one
+    ending."""
     collection = trajectory.scan_collection(root)
     refs, entries, shas, endings, horizon = [], [], set(), set(), 0
     for shard in collection.shards:
@@ -300,19 +376,28 @@ def stored_rollouts(root: Path, policy: str, policy_sha256: str | None = None, h
             if ref.role != ROLE:
                 continue
             if entry.get("policy") != policy:
-                raise ValueError(f"{shard.json_path}: rollouts of policy {entry.get('policy')!r}, not {policy!r}")
+                raise ValueError(
+                    f"{shard.json_path}: rollouts of policy {entry.get('policy')!r}, not {policy!r}"
+                )
             shas.add(entry.get("policy_sha256"))
-            endings.add(entry.get("ending", "success"))  # rollouts recorded before endings stopped at success
+            endings.add(
+                entry.get("ending", "success")
+            )  # rollouts recorded before endings stopped at success
             refs.append(ref)
             entries.append(entry)
     if not refs:
         raise ValueError(f"{root}: no rollouts of {policy}; run {hint} first")
     if len(shas) != 1 or len(endings) != 1:
-        raise ValueError(f"{root}: rollouts of {len(shas)} policy checkpoints and {len(endings)} endings; keep one of each per folder")
+        raise ValueError(
+            f"{root}: rollouts of {len(shas)} policy checkpoints and {len(endings)} endings; "
+            "keep one of each per folder"
+        )
     sha = shas.pop()
     if policy_sha256 is not None and sha != policy_sha256:
-        raise ValueError(f"{root}: rolled out by policy checkpoint {sha[:12]}, not the current {policy_sha256[:12]}; "
-                         f"re-run {hint}")  # fmt: skip
+        raise ValueError(
+            f"{root}: rolled out by policy checkpoint {sha[:12]}, not the current "
+            f"{policy_sha256[:12]}; re-run {hint}"
+        )
     return StoredRollouts(refs, entries, horizon, endings.pop())
 
 
@@ -330,10 +415,17 @@ def rollout(cfg: Annotated[RolloutConfig, tyro.conf.arg(name="")]) -> int:
     """Roll a trained policy out in a split's environments (resumes into --out)."""
     start = time.perf_counter()
     summary = run_rollouts(cfg)
-    outcomes = [ref.success for ref in trajectory.scan_collection(summary.out).episodes() if ref.role == ROLE]
+    outcomes = [
+        ref.success
+        for ref in trajectory.scan_collection(summary.out).episodes()
+        if ref.role == ROLE
+    ]
     low, high = rate_interval(np.asarray(outcomes))
-    print(f"{summary.out}: {summary.planned} shards ({summary.skipped} already there), ran {summary.episodes} "
-          f"rollouts in {time.perf_counter() - start:.1f} s; success rate {100 * np.mean(outcomes):.1f}% "
-          f"[{100 * low:.1f}, {100 * high:.1f}] ({sum(outcomes)}/{len(outcomes)}, {cfg.horizon} steps each"
-          f"{', stopped at success' if cfg.ending == 'success' else ''})")  # fmt: skip
+    print(
+        f"{summary.out}: {summary.planned} shards ({summary.skipped} already there), "
+        f"ran {summary.episodes} rollouts in {time.perf_counter() - start:.1f} s; "
+        f"success rate {100 * np.mean(outcomes):.1f}% [{100 * low:.1f}, {100 * high:.1f}] "
+        f"({sum(outcomes)}/{len(outcomes)}, {cfg.horizon} steps "
+        f"each{', stopped at success' if cfg.ending == 'success' else ''})"
+    )
     return 0

@@ -1,9 +1,9 @@
 """Offline scoring of stored episodes by trained detectors (shared by evaluate and calibrate).
 
-A detector (found through `aed_models.layout.RunLayout`) is checked before it scores anything: trained for this task, and, when it reads a policy's
-features, trained on exactly this policy checkpoint (same sha256). Policy features of an
-episode are computed once and shared by every policy-dependent detector.
-"""
+A detector (found through `aed_models.layout.RunLayout`) is checked before it scores anything:
+trained for this task, and, when it reads a policy's features, trained on exactly this policy
+checkpoint (same sha256). Policy features of an episode are computed once and shared by every
+policy-dependent detector."""
 
 from __future__ import annotations
 
@@ -40,16 +40,20 @@ def load_checked_detector(path: Path, name: str, task: str, policy_sha256: str) 
     from aed_models.detectors import load_detector
 
     if not Path(path).is_file():
-        raise FileNotFoundError(f"{path}: no {name} checkpoint; train it with `aed train-detector --task {task} "
-                                f"--detector {name}`")  # fmt: skip
+        raise FileNotFoundError(
+            f"{path}: no {name} checkpoint; train it with `aed train-detector --task {task} "
+            f"--detector {name}`"
+        )
     model = load_detector(path, name=name)
     extra = getattr(model, "checkpoint_extra", {}) or {}
     if extra.get("task") not in (None, task):
         raise ValueError(f"{path}: {name} was trained for task {extra.get('task')!r}, not {task!r}")
     if model.requires_policy and extra.get("policy_sha256") != policy_sha256:
-        raise ValueError(f"{path}: {name} was trained on policy {extra.get('policy_name')!r} "
-                         f"({str(extra.get('policy_sha256'))[:12]}), not on the evaluated checkpoint "
-                         f"({policy_sha256[:12]}); retrain it with --policy")  # fmt: skip
+        raise ValueError(
+            f"{path}: {name} was trained on policy {extra.get('policy_name')!r} "
+            f"({str(extra.get('policy_sha256'))[:12]}), not on the evaluated checkpoint "
+            f"({policy_sha256[:12]}); retrain it with --policy"
+        )
     return LoadedDetector(name, model.eval(), Path(path))
 
 
@@ -73,14 +77,21 @@ class EpisodeScorer:
         from aed_models.data import pad_sequences
 
         if ref.env_index not in self.demos:
-            raise ValueError(f"{ref.path}:{ref.traj}: no demonstrations of environment {ref.env_index}")
+            raise ValueError(
+                f"{ref.path}:{ref.traj}: no demonstrations of environment {ref.env_index}"
+            )
         demos = self.demos[ref.env_index]
         rollout = pad_sequences([self.reader.read(ref)])
         features = None
         if any(d.model.requires_policy for d in self.detectors):
-            features = self.policy.features(rollout["frames"], rollout["mask"], demos, proprio=rollout.get("proprio"))
+            features = self.policy.features(
+                rollout["frames"], rollout["mask"], demos, proprio=rollout.get("proprio")
+            )
         return {
-            d.name: d.model.score(rollout, demos, features if d.model.requires_policy else None)[0].cpu().numpy().astype(np.float64)
+            d.name: d.model.score(rollout, demos, features if d.model.requires_policy else None)[0]
+            .cpu()
+            .numpy()
+            .astype(np.float64)
             for d in self.detectors
         }
 
@@ -116,7 +127,9 @@ class Demonstrations:
         if self._latest is None or self._latest[0] != env_index:
             reader = EpisodeReader()
             try:
-                demos = pad_sequences([reader.read(r) for r in self.refs[env_index][: self.num_demos]])
+                demos = pad_sequences(
+                    [reader.read(r) for r in self.refs[env_index][: self.num_demos]]
+                )
             finally:
                 reader.close()
             self._latest = (env_index, demos)

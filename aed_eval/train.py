@@ -22,20 +22,31 @@ def training_envs(task: str, profile: str) -> int:
     return protocol(profile).training_envs(task_class(task).catalogue_sizes["base"])
 
 
-def policy_preset(task: str = "PressButton", policy: str = "naive_dc", profile: str = "mini", **kw: Any) -> TrainPolicyConfig:
-    """`aed train-policy`'s defaults: the policy's recipe, on the protocol's training environments."""
-    return TrainPolicyConfig.from_preset(task, policy, profile, num_envs=training_envs(task, profile), **kw)
+def policy_preset(
+    task: str = "PressButton", policy: str = "naive_dc", profile: str = "mini", **kw: Any
+) -> TrainPolicyConfig:
+    """`aed train-policy`'s defaults: the policy's recipe, on the protocol's training
+    environments."""
+    return TrainPolicyConfig.from_preset(
+        task, policy, profile, num_envs=training_envs(task, profile), **kw
+    )
 
 
-def detector_preset(task: str = "PressButton", detector: str = "probe", profile: str = "mini", policy: str | None = None,
-                    **kw: Any) -> TrainDetectorConfig:  # fmt: skip
+def detector_preset(
+    task: str = "PressButton",
+    detector: str = "probe",
+    profile: str = "mini",
+    policy: str | None = None,
+    **kw: Any,
+) -> TrainDetectorConfig:
     """`aed train-detector`'s defaults: the detector's recipe, on the protocol's training
     environments (PrObe and rnd_oe read naive_dc's features unless `--policy` names another)."""
     from aed_models.detectors import requires_policy
 
     policy = policy or ("naive_dc" if requires_policy(detector) else None)
-    return TrainDetectorConfig.from_preset(task, detector, profile, policy=policy,
-                                           num_envs=training_envs(task, profile), **kw)  # fmt: skip
+    return TrainDetectorConfig.from_preset(
+        task, detector, profile, policy=policy, num_envs=training_envs(task, profile), **kw
+    )
 
 
 def train_policy(cfg: Annotated[TrainPolicyConfig, tyro.conf.arg(name="")]) -> int:
@@ -44,7 +55,10 @@ def train_policy(cfg: Annotated[TrainPolicyConfig, tyro.conf.arg(name="")]) -> i
 
     start = time.perf_counter()
     path = run(cfg)
-    print(f"{path}: {cfg.policy} trained on {cfg.task} ({cfg.profile}) in {time.perf_counter() - start:.0f} s")
+    print(
+        f"{path}: {cfg.policy} trained on {cfg.task} ({cfg.profile}) in "
+        f"{time.perf_counter() - start:.0f} s"
+    )
     return 0
 
 
@@ -54,5 +68,8 @@ def train_detector(cfg: Annotated[TrainDetectorConfig, tyro.conf.arg(name="")]) 
 
     start = time.perf_counter()
     path = run(cfg)
-    print(f"{path}: {cfg.detector} trained on {cfg.task} ({cfg.profile}) in {time.perf_counter() - start:.0f} s")
+    print(
+        f"{path}: {cfg.detector} trained on {cfg.task} ({cfg.profile}) in "
+        f"{time.perf_counter() - start:.0f} s"
+    )
     return 0

@@ -73,7 +73,9 @@ class RolloutAugment:
             i += 1
         return np.asarray(out or [0], dtype=np.int64)
 
-    def __call__(self, *arrays: Any, rng: np.random.Generator | int | None = None) -> tuple[Any, ...]:
+    def __call__(
+        self, *arrays: Any, rng: np.random.Generator | int | None = None
+    ) -> tuple[Any, ...]:
         """Apply one draw to several per-frame arrays (numpy or torch) of the same length.
 
         `augment(frames, labels, rng=seed)` returns `(frames[idx], labels[idx])`.
@@ -82,7 +84,9 @@ class RolloutAugment:
             return ()
         length = len(arrays[0])
         if any(len(a) != length for a in arrays):
-            raise ValueError(f"arrays of different lengths {[len(a) for a in arrays]}: not per-frame")
+            raise ValueError(
+                f"arrays of different lengths {[len(a) for a in arrays]}: not per-frame"
+            )
         idx = self.indices(length, rng)
         return tuple(_take(a, idx) for a in arrays)
 

@@ -54,11 +54,19 @@ def save_checkpoint(
     A run killed mid-write leaves the previous checkpoint intact.
     """
     if not isinstance(config, dict):
-        raise TypeError(f"config of type {type(config).__name__}: must be a plain dict (use dataclasses.asdict)")
+        raise TypeError(
+            f"config of type {type(config).__name__}: must be a plain dict (use dataclasses.asdict)"
+        )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"format": FORMAT, "family": family, "name": name, "config": config,
-               "state_dict": state_dict, "extra": dict(extra or {})}  # fmt: skip
+    payload = {
+        "format": FORMAT,
+        "family": family,
+        "name": name,
+        "config": config,
+        "state_dict": state_dict,
+        "extra": dict(extra or {}),
+    }
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
@@ -72,7 +80,9 @@ def save_checkpoint(
     return file_sha256(path)
 
 
-def load_checkpoint(path: Path | str, *, family: str, name: str | None = None, map_location: str = "cpu") -> Checkpoint:
+def load_checkpoint(
+    path: Path | str, *, family: str, name: str | None = None, map_location: str = "cpu"
+) -> Checkpoint:
     """Read and check a checkpoint written by `save_checkpoint`.
 
     Raises:
@@ -84,12 +94,18 @@ def load_checkpoint(path: Path | str, *, family: str, name: str | None = None, m
         raise CheckpointError(f"{path}: no such checkpoint file")
     try:
         payload = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as e:  # torch raises RuntimeError, UnpicklingError, EOFError, ... for bad files
-        raise CheckpointError(f"{path}: unreadable checkpoint (corrupt or truncated?): {type(e).__name__}: {e}") from e
+    except (
+        Exception
+    ) as e:  # torch raises RuntimeError, UnpicklingError, EOFError, ... for bad files
+        raise CheckpointError(
+            f"{path}: unreadable checkpoint (corrupt or truncated?): {type(e).__name__}: {e}"
+        ) from e
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise CheckpointError(f"{path}: not an AED checkpoint (no format {FORMAT!r})")
     if payload.get("family") != family:
-        raise CheckpointError(f"{path}: a {payload.get('family')!r} checkpoint, expected a {family!r} one")
+        raise CheckpointError(
+            f"{path}: a {payload.get('family')!r} checkpoint, expected a {family!r} one"
+        )
     if name is not None and payload.get("name") != name:
         raise CheckpointError(
             f"{path}: a {family} checkpoint of {payload.get('name')!r}, expected {name!r}"

@@ -51,20 +51,29 @@ PROPRIO_DIM = 5  # TCP position (3) + finger joints (2)
 
 def proprio_from_obs(tcp_pose: Any, qpos: Any) -> np.ndarray:
     """(..., 7) TCP pose and (..., 9) Panda qpos -> (..., 5) float32: TCP xyz, finger joints."""
-    tcp_pose, qpos = (np.asarray(x.cpu() if isinstance(x, torch.Tensor) else x, dtype=np.float32) for x in (tcp_pose, qpos))
+    tcp_pose, qpos = (
+        np.asarray(x.cpu() if isinstance(x, torch.Tensor) else x, dtype=np.float32)
+        for x in (tcp_pose, qpos)
+    )
     if tcp_pose.shape[-1] != 7 or qpos.shape[-1] < 2:
-        raise ValueError(f"proprio: tcp_pose {tcp_pose.shape} and qpos {qpos.shape}: expected (..., 7) and (..., >= 2)")
+        raise ValueError(
+            f"proprio: tcp_pose {tcp_pose.shape} and qpos {qpos.shape}: "
+            "expected (..., 7) and (..., >= 2)"
+        )
     return np.concatenate([tcp_pose[..., :3], qpos[..., -2:]], axis=-1)
 
 
 def to_frames(rgb: np.ndarray, depth: np.ndarray, out: torch.Tensor | None = None) -> torch.Tensor:
-    """(L, H, W, 3) uint8 RGB + (L, H, W, 1) int16 mm depth -> (L, 4, H, W) float32 (see module doc).
+    """(L, H, W, 3) uint8 RGB + (L, H, W, 1) int16 mm depth -> (L, 4, H, W) float32
+    (see module doc).
 
     Writes into `out` when given (one pass over memory: a batch of 25 x 100 frames is 1.9 GB).
     """
     if out is None:
         out = torch.empty((len(rgb), 4, *rgb.shape[1:3]), dtype=torch.float32)
-    out[:, :3].copy_(torch.from_numpy(np.ascontiguousarray(rgb)).permute(0, 3, 1, 2)).mul_(1.0 / 255.0)
+    out[:, :3].copy_(torch.from_numpy(np.ascontiguousarray(rgb)).permute(0, 3, 1, 2)).mul_(
+        1.0 / 255.0
+    )
     out[:, 3:].copy_(torch.from_numpy(np.ascontiguousarray(depth)).permute(0, 3, 1, 2))
     out[:, 3:].mul_(1.0 / DEPTH_SCALE_MM).clamp_(0.0, 1.0)
     return out
@@ -83,7 +92,9 @@ def stage_subgoals(tcp: np.ndarray, stage: np.ndarray) -> np.ndarray:
     position on the frame where its stage ends (the frame after the step that completes it; the
     last frame for the final stage). Frame t + 1 follows step t, so it carries stage[t]; frame 0
     carries stage[0]."""
-    frame_stage = np.concatenate([stage[:1], stage]) if len(stage) else np.zeros(len(tcp), dtype=np.int64)
+    frame_stage = (
+        np.concatenate([stage[:1], stage]) if len(stage) else np.zeros(len(tcp), dtype=np.int64)
+    )
     goals = np.empty_like(tcp)
     goals[-1] = tcp[-1]
     for i in range(len(tcp) - 2, -1, -1):
@@ -152,7 +163,9 @@ class EpisodeReader:
             indices = np.arange(ref.num_frames, dtype=np.int64)
         indices = np.asarray(indices, dtype=np.int64)
         if len(indices) == 0 or indices.min() < 0 or indices.max() >= ref.num_frames:
-            raise IndexError(f"{ref.path.name}/{ref.traj}: frame indices outside 0..{ref.num_frames - 1}")
+            raise IndexError(
+                f"{ref.path.name}/{ref.traj}: frame indices outside 0..{ref.num_frames - 1}"
+            )
         images = group[f"obs/sensor_data/{self.camera}"]
         unique, inverse = np.unique(indices, return_inverse=True)
         rgb = _read_rows(images["rgb"], unique)[inverse]
@@ -161,12 +174,26 @@ class EpisodeReader:
         actions = group["actions"][()].astype(np.float32)
         actions = np.concatenate([actions, np.zeros((1, actions.shape[1]), np.float32)])[indices]
         proprio = subgoal = None
-        if "obs/extra/tcp_pose" in group and "obs/agent/qpos" in group:  # every rgbd collection has both
+        if (
+            "obs/extra/tcp_pose" in group and "obs/agent/qpos" in group
+        ):  # every rgbd collection has both
             tcp_pose = group["obs/extra/tcp_pose"][()]
-            proprio = torch.from_numpy(proprio_from_obs(tcp_pose, group["obs/agent/qpos"][()])[indices])
-            subgoal = torch.from_numpy(stage_subgoals(tcp_pose[:, :3].astype(np.float32), group["stage"][()])[indices])
-        return FrameSequence(rgb, depth, torch.from_numpy(labels), torch.from_numpy(actions), torch.from_numpy(indices), ref,
-                             proprio, subgoal)  # fmt: skip
+            proprio = torch.from_numpy(
+                proprio_from_obs(tcp_pose, group["obs/agent/qpos"][()])[indices]
+            )
+            subgoal = torch.from_numpy(
+                stage_subgoals(tcp_pose[:, :3].astype(np.float32), group["stage"][()])[indices]
+            )
+        return FrameSequence(
+            rgb,
+            depth,
+            torch.from_numpy(labels),
+            torch.from_numpy(actions),
+            torch.from_numpy(indices),
+            ref,
+            proprio,
+            subgoal,
+        )
 
     def close(self) -> None:
         for f in self._files.values():
@@ -206,7 +233,14 @@ def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
         frames[i, n:] = 0.0
         labels[i, :n], actions[i, :n], source[i, :n] = s.labels, s.actions, s.source
     mask = torch.arange(longest)[None] < lengths[:, None]
-    batch = {"frames": frames, "labels": labels, "actions": actions, "lengths": lengths, "mask": mask, "source": source}
+    batch = {
+        "frames": frames,
+        "labels": labels,
+        "actions": actions,
+        "lengths": lengths,
+        "mask": mask,
+        "source": source,
+    }
     for key in ("proprio", "subgoal"):
         if all(getattr(s, key) is not None for s in seqs):
             batch[key] = torch.zeros(len(seqs), longest, getattr(seqs[0], key).shape[-1])
@@ -216,7 +250,9 @@ def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
 
 
 def load_episodes(
-    roots: Path | str | Sequence[Path | str], split: str | None = "base", check: trajectory.Check = "quick"
+    roots: Path | str | Sequence[Path | str],
+    split: str | None = "base",
+    check: trajectory.Check = "quick",
 ) -> list[trajectory.EpisodeRef]:
     """Every episode of one or several collection folders (validated), optionally one split."""
     roots = [roots] if isinstance(roots, (str, Path)) else list(roots)
@@ -276,15 +312,26 @@ class EnvironmentIterations(Dataset):
         self._check_pools()
 
     def _check_pools(self) -> None:
-        wanted = {"demo": self.composition.num_demos, "agent_success": self.composition.num_successes,
-                  "agent_failure": self.composition.num_failures}  # fmt: skip
+        wanted = {
+            "demo": self.composition.num_demos,
+            "agent_success": self.composition.num_successes,
+            "agent_failure": self.composition.num_failures,
+        }
         for env_index, pool in self.pools.items():
             for role, n in wanted.items():
                 if n and not pool[role]:
-                    raise ValueError(f"environment {env_index} has no {role} episodes, the composition asks {n}")
+                    raise ValueError(
+                        f"environment {env_index} has no {role} episodes, the composition asks {n}"
+                    )
                 if 0 < len(pool[role]) < n:
-                    logger.info("environment %d: %d %s episodes < %d per iteration, sampled with replacement",
-                                env_index, len(pool[role]), role, n)  # fmt: skip
+                    logger.info(
+                        "environment %d: %d %s episodes < %d per iteration, "
+                        "sampled with replacement",
+                        env_index,
+                        len(pool[role]),
+                        role,
+                        n,
+                    )
 
     def __len__(self) -> int:
         return len(self.env_indices)
@@ -294,31 +341,57 @@ class EnvironmentIterations(Dataset):
         env_index = self.env_indices[position]
         rng = np.random.default_rng([self.seed, epoch, position])
         pool = self.pools[env_index]
-        demos = [self._sequence(ref, rng, augment=False) for ref in _draw(pool["demo"], self.composition.num_demos, rng)]
+        demos = [
+            self._sequence(ref, rng, augment=False)
+            for ref in _draw(pool["demo"], self.composition.num_demos, rng)
+        ]
         rollouts = [
             self._sequence(ref, rng, augment=True)
-            for role, n in (("agent_success", self.composition.num_successes), ("agent_failure", self.composition.num_failures))
+            for role, n in (
+                ("agent_success", self.composition.num_successes),
+                ("agent_failure", self.composition.num_failures),
+            )
             for ref in _draw(pool[role], n, rng)
-        ]  # fmt: skip
-        batch = {"env_index": env_index, "epoch": epoch, "demos": pad_sequences(demos), "rollouts": pad_sequences(rollouts)}
+        ]
+        batch = {
+            "env_index": env_index,
+            "epoch": epoch,
+            "demos": pad_sequences(demos),
+            "rollouts": pad_sequences(rollouts),
+        }
         if rollouts:
-            batch["rollouts"]["is_failure"] = torch.tensor([s.ref.role == "agent_failure" for s in rollouts])
+            batch["rollouts"]["is_failure"] = torch.tensor(
+                [s.ref.role == "agent_failure" for s in rollouts]
+            )
         return batch
 
-    def _sequence(self, ref: trajectory.EpisodeRef, rng: np.random.Generator, augment: bool) -> FrameSequence:
+    def _sequence(
+        self, ref: trajectory.EpisodeRef, rng: np.random.Generator, augment: bool
+    ) -> FrameSequence:
         if augment and self.augment is not None:
             indices = self.augment.indices(ref.num_frames, rng)
         else:
             indices = np.arange(ref.num_frames, dtype=np.int64)
-        if ref.role != "demo" and self.rollout_frames == "random" and self.max_frames and len(indices) > self.max_frames:
-            return self.reader.read(ref, indices[np.sort(rng.choice(len(indices), self.max_frames, replace=False))])
+        if (
+            ref.role != "demo"
+            and self.rollout_frames == "random"
+            and self.max_frames
+            and len(indices) > self.max_frames
+        ):
+            return self.reader.read(
+                ref, indices[np.sort(rng.choice(len(indices), self.max_frames, replace=False))]
+            )
         return self.reader.read(ref, subsample(indices, self.max_frames))
 
 
-def _group(episodes: Sequence[trajectory.EpisodeRef], demos: str) -> dict[int, dict[str, list[trajectory.EpisodeRef]]]:
+def _group(
+    episodes: Sequence[trajectory.EpisodeRef], demos: str
+) -> dict[int, dict[str, list[trajectory.EpisodeRef]]]:
     if demos not in ("optimal", "suboptimal", "any"):
         raise ValueError(f"demos={demos!r}: optimal, suboptimal or any")
-    pools: dict[int, dict[str, list[trajectory.EpisodeRef]]] = defaultdict(lambda: defaultdict(list))
+    pools: dict[int, dict[str, list[trajectory.EpisodeRef]]] = defaultdict(
+        lambda: defaultdict(list)
+    )
     for ref in episodes:
         if ref.role == "demo" and demos != "any" and ref.suboptimal != (demos == "suboptimal"):
             continue
@@ -326,7 +399,9 @@ def _group(episodes: Sequence[trajectory.EpisodeRef], demos: str) -> dict[int, d
     return pools
 
 
-def _draw(pool: list[trajectory.EpisodeRef], n: int, rng: np.random.Generator) -> list[trajectory.EpisodeRef]:
+def _draw(
+    pool: list[trajectory.EpisodeRef], n: int, rng: np.random.Generator
+) -> list[trajectory.EpisodeRef]:
     if n == 0:
         return []
     picks = rng.choice(len(pool), size=n, replace=len(pool) < n)
@@ -334,15 +409,30 @@ def _draw(pool: list[trajectory.EpisodeRef], n: int, rng: np.random.Generator) -
 
 
 class EnvironmentSampler(Sampler):
-    """Yields `(epoch, position)`: every epoch visits each environment once, shuffled by (seed, epoch).
+    """Yields `(epoch, position)`: every epoch visits each environment once, shuffled by
+    (seed, epoch).
 
-    Use with `DataLoader(dataset, sampler=EnvironmentSampler(len(dataset), epochs), batch_size=None)`.
+    Use with
+    `DataLoader(dataset, sampler=EnvironmentSampler(len(dataset), epochs), batch_size=None)`.
     """
 
-    def __init__(self, num_envs: int, epochs: int = 1, seed: int = 0, shuffle: bool = True, start_epoch: int = 0):
+    def __init__(
+        self,
+        num_envs: int,
+        epochs: int = 1,
+        seed: int = 0,
+        shuffle: bool = True,
+        start_epoch: int = 0,
+    ):
         if num_envs < 1 or epochs < 1:
             raise ValueError(f"num_envs={num_envs}, epochs={epochs}: both must be >= 1")
-        self.num_envs, self.epochs, self.seed, self.shuffle, self.start_epoch = num_envs, epochs, seed, shuffle, start_epoch
+        self.num_envs, self.epochs, self.seed, self.shuffle, self.start_epoch = (
+            num_envs,
+            epochs,
+            seed,
+            shuffle,
+            start_epoch,
+        )
 
     def __iter__(self) -> Iterator[tuple[int, int]]:
         for epoch in range(self.start_epoch, self.start_epoch + self.epochs):
@@ -359,7 +449,12 @@ class EnvironmentSampler(Sampler):
 class EpisodeDataset(Dataset):
     """One item = one whole episode (offline scoring, evaluation), optionally capped in frames."""
 
-    def __init__(self, episodes: Sequence[trajectory.EpisodeRef], camera: str = "front", max_frames: int | None = None):
+    def __init__(
+        self,
+        episodes: Sequence[trajectory.EpisodeRef],
+        camera: str = "front",
+        max_frames: int | None = None,
+    ):
         self.episodes = list(episodes)
         self.max_frames = max_frames
         self.reader = EpisodeReader(camera)

@@ -1,13 +1,13 @@
 """Where the protocol's files live: one convention under a runs folder (default `runs/`).
 
-    runs/<task>/data/<split>                       aed collect (base: training; novel: demonstrations)
-    runs/<task>/data/<split>-labelled              labelled expert episodes of the novel split
-    runs/<task>/policies/<policy>/policy.pt        aed train-policy
-    runs/<task>/detectors/<detector>[-<policy>]/   aed train-detector (detector.pt), aed calibrate
-    runs/<task>/features/<policy sha256[:16]>/     frozen-policy features (PrObe, rnd_oe training)
-    runs/<task>/rollouts/<policy>/<split>          aed rollout
-    runs/<task>/<policy>/eval                      aed evaluate
-    runs/report                                    aed report
+runs/<task>/data/<split>                       aed collect (base: training; novel: demonstrations)
+runs/<task>/data/<split>-labelled              labelled expert episodes of the novel split
+runs/<task>/policies/<policy>/policy.pt        aed train-policy
+runs/<task>/detectors/<detector>[-<policy>]/   aed train-detector (detector.pt), aed calibrate
+runs/<task>/features/<policy sha256[:16]>/     frozen-policy features (PrObe, rnd_oe training)
+runs/<task>/rollouts/<policy>/<split>          aed rollout
+runs/<task>/<policy>/eval                      aed evaluate
+runs/report                                    aed report
 """
 
 from __future__ import annotations

@@ -23,7 +23,10 @@ def masked_bce(logits: torch.Tensor, labels: torch.Tensor, mask: torch.Tensor) -
         mask: (B, T) True on real frames.
     """
     if logits.shape != labels.shape or logits.shape != mask.shape:
-        raise ValueError(f"logits {tuple(logits.shape)}, labels {tuple(labels.shape)}, mask {tuple(mask.shape)}: must match")
+        raise ValueError(
+            f"logits {tuple(logits.shape)}, labels {tuple(labels.shape)}, "
+            f"mask {tuple(mask.shape)}: must match"
+        )
     mask = mask.bool()
     if not mask.any():
         raise ValueError("mask selects no frame: nothing to classify")
@@ -42,7 +45,9 @@ def pattern_l1(patterns: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         mask: (B, T) True on real frames.
     """
     if patterns.shape[:2] != mask.shape:
-        raise ValueError(f"patterns {tuple(patterns.shape)} and mask {tuple(mask.shape)}: (B, T) must match")
+        raise ValueError(
+            f"patterns {tuple(patterns.shape)} and mask {tuple(mask.shape)}: (B, T) must match"
+        )
     mask = mask.bool()
     if not mask.any():
         raise ValueError("mask selects no frame")
@@ -86,9 +91,13 @@ def sample_triplets(
         normal = (labels[b] <= 0.5) & valid
         if error.sum() < 1 or normal.sum() < 1 or valid.sum() < 3:
             continue
-        anchors = torch.multinomial(valid.float(), per_rollout, replacement=True, generator=generator)
+        anchors = torch.multinomial(
+            valid.float(), per_rollout, replacement=True, generator=generator
+        )
         same = torch.where(error[anchors, None], error[None], normal[None]).float()  # (n, T)
-        same[torch.arange(per_rollout, device=labels.device), anchors] = 0.0  # a positive is another frame
+        same[torch.arange(per_rollout, device=labels.device), anchors] = (
+            0.0  # a positive is another frame
+        )
         other = torch.where(error[anchors, None], normal[None], error[None]).float()
         usable = same.sum(1) > 0
         if not usable.any():
@@ -112,7 +121,8 @@ def temporal_triplet_loss(
     alpha: float = 0.5,
     clip: float = 0.5,
 ) -> torch.Tensor:
-    """L_tem = mean_i max(||a_i - p_i|| - ||a_i - n_i|| + m_t, 0), m_t = m (1 - alpha (d_ap - d_an)).
+    """L_tem = mean_i max(||a_i - p_i|| - ||a_i - n_i|| + m_t, 0),
+    m_t = m (1 - alpha (d_ap - d_an)).
 
     d_ap, d_an are temporal distances normalised by the rollout's length (so they do not
     depend on how many frames were kept), clipped at `clip` and divided by it: they lie in

@@ -117,7 +117,8 @@ class PolicyRecipe(Recipe):
 
     Args:
         composition: demonstrations and agent successes one iteration draws from one environment.
-        rollout_frames: how `max_frames` picks rollout frames: even, or a fresh random subset per draw.
+        rollout_frames: how `max_frames` picks rollout frames: even, or a fresh random subset
+            per draw.
         shift: random-shift augmentation in pixels, per sequence (0: off).
     """
 
@@ -152,4 +153,6 @@ class DetectorRecipe(Recipe):
         super().__post_init__()
         self.composition = tuple(int(n) for n in self.composition)
         if len(self.composition) != 3 or min(self.composition) < 0 or self.composition[0] < 1:
-            raise ValueError(f"composition={self.composition}: (demos >= 1, successes >= 0, failures >= 0)")
+            raise ValueError(
+                f"composition={self.composition}: (demos >= 1, successes >= 0, failures >= 0)"
+            )

@@ -39,7 +39,9 @@ class ModelRegistry:
 
     def check(self, name: str) -> str:
         if name not in self.classes:
-            raise UnknownModelError(f"unknown {self.family} {name!r}; known: {', '.join(self.classes)}")
+            raise UnknownModelError(
+                f"unknown {self.family} {name!r}; known: {', '.join(self.classes)}"
+            )
         return name
 
     def config_type(self, name: str) -> type:
@@ -65,16 +67,21 @@ class ModelRegistry:
         known = {f.name for f in dataclasses.fields(config)}
         unknown = sorted(set(overrides) - known)
         if unknown:
-            raise UnknownModelError(f"{name}: unknown config fields {unknown}; known {sorted(known)}")
+            raise UnknownModelError(
+                f"{name}: unknown config fields {unknown}; known {sorted(known)}"
+            )
         return dataclasses.replace(config, **overrides)
 
     def config_from_dict(self, name: str, values: dict[str, Any]) -> Any:
-        """Rebuild a config from its `to_dict()` form (unknown keys refused, missing ones default)."""
+        """Rebuild a config from its `to_dict()` form (unknown keys refused, missing ones
+        default)."""
         config_cls = self.config_type(name)
         known = {f.name for f in dataclasses.fields(config_cls)}
         unknown = sorted(set(values) - known)
         if unknown:
-            raise UnknownModelError(f"{name}: config has unknown fields {unknown}; known {sorted(known)}")
+            raise UnknownModelError(
+                f"{name}: config has unknown fields {unknown}; known {sorted(known)}"
+            )
         return config_cls(**values)
 
     def make(self, name: str, config: Any = None, **overrides: Any) -> Any:
@@ -85,8 +92,10 @@ class ModelRegistry:
         elif isinstance(config, dict):
             config = self.config_from_dict(name, config)
         elif not isinstance(config, config_cls):
-            raise UnknownModelError(f"config of type {type(config).__name__}: {self.family} {name!r} needs a "
-                                    f"{config_cls.__name__}")  # fmt: skip
+            raise UnknownModelError(
+                f"config of type {type(config).__name__}: {self.family} {name!r} needs a "
+                f"{config_cls.__name__}"
+            )
         if overrides:
             config = self.replace(name, config, **overrides)
         return self.model_type(name)(config)
@@ -95,8 +104,14 @@ class ModelRegistry:
         """Write `model` (its name, config and weights) as a checkpoint; returns its sha256."""
         from aed_models.checkpoint import save_checkpoint
 
-        return save_checkpoint(path, family=self.family, name=model.name, config=model.config.to_dict(),
-                               state_dict=model.state_dict(), extra=extra)  # fmt: skip
+        return save_checkpoint(
+            path,
+            family=self.family,
+            name=model.name,
+            config=model.config.to_dict(),
+            state_dict=model.state_dict(),
+            extra=extra,
+        )
 
     def load(self, path: Path | str, name: str | None = None, map_location: str = "cpu") -> Any:
         """A model from its checkpoint, in eval mode, with `checkpoint_extra` (provenance) and
@@ -107,8 +122,10 @@ class ModelRegistry:
             self.check(name)
         ckpt = load_checkpoint(path, family=self.family, name=name, map_location=map_location)
         if ckpt.name not in self.classes:
-            raise CheckpointError(f"{path}: {self.family} {ckpt.name!r} is not registered; known: "
-                                  f"{', '.join(self.classes)}")  # fmt: skip
+            raise CheckpointError(
+                f"{path}: {self.family} {ckpt.name!r} is not registered; known: "
+                f"{', '.join(self.classes)}"
+            )
         try:
             model = self.make(ckpt.name, ckpt.config)
             model.load_state_dict(ckpt.state_dict)

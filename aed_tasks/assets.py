@@ -65,13 +65,68 @@ MESH_PROFILES: dict[str, dict] = {
     # drinking vessels (Pick & Place, Move Glass Cup)
     "mug_cylinder": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0.44, 1), (0.44, 0.1), (0, 0.1)]},
     "cup_tapered": {"outline": [(0, 0), (0.4, 0), (0.5, 1), (0.45, 1), (0.36, 0.1), (0, 0.1)]},
-    "mug_barrel": {"outline": [(0, 0), (0.42, 0), (0.5, 0.5), (0.43, 1), (0.38, 1), (0.44, 0.5), (0.36, 0.1), (0, 0.1)]},
-    "cup_waisted": {"outline": [(0, 0), (0.5, 0), (0.42, 0.5), (0.5, 1), (0.45, 1), (0.37, 0.5), (0.44, 0.1), (0, 0.1)]},
+    "mug_barrel": {
+        "outline": [
+            (0, 0),
+            (0.42, 0),
+            (0.5, 0.5),
+            (0.43, 1),
+            (0.38, 1),
+            (0.44, 0.5),
+            (0.36, 0.1),
+            (0, 0.1),
+        ]
+    },
+    "cup_waisted": {
+        "outline": [
+            (0, 0),
+            (0.5, 0),
+            (0.42, 0.5),
+            (0.5, 1),
+            (0.45, 1),
+            (0.37, 0.5),
+            (0.44, 0.1),
+            (0, 0.1),
+        ]
+    },
     # bowls
-    "bowl_round": {"outline": [(0, 0), (0.3, 0), (0.45, 0.5), (0.5, 1), (0.46, 1), (0.41, 0.5), (0.28, 0.2), (0, 0.2)]},
+    "bowl_round": {
+        "outline": [
+            (0, 0),
+            (0.3, 0),
+            (0.45, 0.5),
+            (0.5, 1),
+            (0.46, 1),
+            (0.41, 0.5),
+            (0.28, 0.2),
+            (0, 0.2),
+        ]
+    },
     "bowl_straight": {"outline": [(0, 0), (0.4, 0), (0.5, 1), (0.46, 1), (0.37, 0.2), (0, 0.2)]},
-    "bowl_basin": {"outline": [(0, 0), (0.45, 0), (0.5, 0.3), (0.5, 1), (0.46, 1), (0.46, 0.3), (0.42, 0.2), (0, 0.2)]},
-    "bowl_lipped": {"outline": [(0, 0), (0.34, 0), (0.44, 0.85), (0.5, 0.9), (0.5, 1), (0.4, 1), (0.31, 0.2), (0, 0.2)]},
+    "bowl_basin": {
+        "outline": [
+            (0, 0),
+            (0.45, 0),
+            (0.5, 0.3),
+            (0.5, 1),
+            (0.46, 1),
+            (0.46, 0.3),
+            (0.42, 0.2),
+            (0, 0.2),
+        ]
+    },
+    "bowl_lipped": {
+        "outline": [
+            (0, 0),
+            (0.34, 0),
+            (0.44, 0.85),
+            (0.5, 0.9),
+            (0.5, 1),
+            (0.4, 1),
+            (0.31, 0.2),
+            (0, 0.2),
+        ]
+    },
     # environment distractors (solid)
     "vase": {"outline": [(0, 0), (0.35, 0), (0.5, 0.4), (0.2, 0.85), (0.3, 1), (0, 1)]},
     "bottle": {"outline": [(0, 0), (0.5, 0), (0.5, 0.6), (0.2, 0.8), (0.2, 1), (0, 1)]},
@@ -79,26 +134,51 @@ MESH_PROFILES: dict[str, dict] = {
     "spindle": {"outline": [(0, 0), (0.2, 0), (0.5, 0.5), (0.2, 1), (0, 1)]},
     # push buttons (Press Button): polygonal prisms of unit height
     "button_housing_hex": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)], "sections": 6},
-    "button_cap_dome": {"outline": [(0, 0), (0.5, 0), (0.5, 0.3), (0.433, 0.65), (0.25, 0.9), (0, 1)]},
+    "button_cap_dome": {
+        "outline": [(0, 0), (0.5, 0), (0.5, 0.3), (0.433, 0.65), (0.25, 0.9), (0, 1)]
+    },
     # glasses, water drops and coasters (Move Glass Cup); a glass's collision follows its outer wall
     "glass_tumbler": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0.45, 1), (0.45, 0.1), (0, 0.1)]},
     "glass_tapered": {"outline": [(0, 0), (0.41, 0), (0.5, 1), (0.45, 1), (0.365, 0.1), (0, 0.1)]},
     "glass_octagonal": {  # eight facets over a chamfered foot
-        "outline": [(0, 0), (0.42, 0), (0.5, 0.35), (0.5, 1), (0.45, 1), (0.45, 0.35), (0.37, 0.1), (0, 0.1)], "sections": 8
+        "outline": [
+            (0, 0),
+            (0.42, 0),
+            (0.5, 0.35),
+            (0.5, 1),
+            (0.45, 1),
+            (0.45, 0.35),
+            (0.37, 0.1),
+            (0, 0.1),
+        ],
+        "sections": 8,
     },
     "glass_round_bottom": {  # a rounded belly under a straight rim
         "outline": [
-            (0, 0), (0.3, 0), (0.45, 0.25), (0.5, 0.55), (0.5, 1), (0.45, 1), (0.45, 0.55), (0.4, 0.25), (0.25, 0.1), (0, 0.1)
+            (0, 0),
+            (0.3, 0),
+            (0.45, 0.25),
+            (0.5, 0.55),
+            (0.5, 1),
+            (0.45, 1),
+            (0.45, 0.55),
+            (0.4, 0.25),
+            (0.25, 0.1),
+            (0, 0.1),
         ]
     },
     "glass_water_drop": {
-        "outline": [(0, 0), (0.354, 0.146), (0.5, 0.5), (0.354, 0.854), (0, 1)], "sections": 8
+        "outline": [(0, 0), (0.354, 0.146), (0.5, 0.5), (0.354, 0.854), (0, 1)],
+        "sections": 8,
     },
     "coaster_hexagon": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)], "sections": 6},
     "coaster_oval": {"outline": [(0, 0), (0.5, 0), (0.5, 1), (0, 1)]},
     # products (Factory Packing, novel split): a tub widening to a lip, and a necked jar
     "product_tub": {"outline": [(0, 0), (0.4, 0), (0.47, 0.86), (0.5, 0.88), (0.5, 1), (0, 1)]},
-    "product_jar": {"outline": [(0, 0), (0.5, 0), (0.5, 0.72), (0.36, 0.84), (0.36, 1), (0, 1)], "sections": 16},
+    "product_jar": {
+        "outline": [(0, 0), (0.5, 0), (0.5, 0.72), (0.36, 0.84), (0.36, 1), (0, 1)],
+        "sections": 16,
+    },
 }
 for _profile in MESH_PROFILES.values():
     _profile.setdefault("sections", 24)
@@ -113,7 +193,9 @@ def texture_names(split: str) -> list[str]:
 def texture_path(name: str) -> Path:
     path = ASSET_DIR / "textures" / name
     if not path.is_file():
-        raise FileNotFoundError(f"texture {name!r} missing at {path}; run scripts/generate_assets.py")
+        raise FileNotFoundError(
+            f"texture {name!r} missing at {path}; run scripts/generate_assets.py"
+        )
     return path
 
 

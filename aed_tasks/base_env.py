@@ -54,7 +54,12 @@ CAMERAS: dict[str, tuple[list[float], list[float]]] = {
     "front_shift": ([0.82, 0.32, 0.78], [-0.12, 0.0, 0.02]),
 }
 IMAGE_WIDTH, IMAGE_HEIGHT = 160, 120
-DEMONSTRATOR_TINT = (0.6, 0.9, 0.1, 1.0)  # the expert's Panda is lime (no split colour), the agent's stays white
+DEMONSTRATOR_TINT = (
+    0.6,
+    0.9,
+    0.1,
+    1.0,
+)  # the expert's Panda is lime (no split colour), the agent's stays white
 
 
 class AEDBaseEnv(BaseEnv):
@@ -75,7 +80,12 @@ class AEDBaseEnv(BaseEnv):
     """
 
     SUPPORTED_ROBOTS: ClassVar[list[str]] = ["panda"]
-    SUPPORTED_REWARD_MODES: ClassVar[tuple[str, ...]] = ("sparse", "dense", "normalized_dense", "none")
+    SUPPORTED_REWARD_MODES: ClassVar[tuple[str, ...]] = (
+        "sparse",
+        "dense",
+        "normalized_dense",
+        "none",
+    )
     agent: Panda
 
     # --- declared by each task ------------------------------------------------------------
@@ -87,7 +97,9 @@ class AEDBaseEnv(BaseEnv):
     # the failed first attempts of sub-optimal demonstrations
     recoverable_errors: ClassVar[tuple[str, ...]] = ()
     num_env_distractors: ClassVar[int] = 0
-    max_episode_steps: ClassVar[int] = 200  # the registered time limit: no expert episode reaches it
+    max_episode_steps: ClassVar[int] = (
+        200  # the registered time limit: no expert episode reaches it
+    )
     # steps of every policy rollout (aed rollout), whatever its outcome, so that its length tells
     # nothing: twice the longest clean expert episode (imitating policies are slower than the
     # expert), at most the time limit; results/expert_lengths/ has the lengths
@@ -150,12 +162,20 @@ class AEDBaseEnv(BaseEnv):
         used = [o.material.colour for o in objects.values()]
         distractors = sample_distractors(rng, split, cls.num_env_distractors, exclude=used)
         return EnvironmentSpec(
-            task=cls.task_name, split=split, index=index, ambient=ambient, lights=lights,
-            objects=objects, distractors=distractors, **sample_background(rng, split),
-        )  # fmt: skip
+            task=cls.task_name,
+            split=split,
+            index=index,
+            ambient=ambient,
+            lights=lights,
+            objects=objects,
+            distractors=distractors,
+            **sample_background(rng, split),
+        )
 
     @classmethod
-    def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:
+    def sample_objects(
+        cls, rng: np.random.Generator, split: str, index: int
+    ) -> dict[str, ObjectSpec]:
         """The task's interactive objects and task distractors of environment `index`."""
         raise NotImplementedError
 
@@ -169,7 +189,13 @@ class AEDBaseEnv(BaseEnv):
         shader = camera_shader_config()  # `minimal` with a shadow filter cheap on CPUs
         return [
             CameraConfig(
-                name, sapien_utils.look_at(*CAMERAS[name]), IMAGE_WIDTH, IMAGE_HEIGHT, np.deg2rad(62), 0.01, 5,
+                name,
+                sapien_utils.look_at(*CAMERAS[name]),
+                IMAGE_WIDTH,
+                IMAGE_HEIGHT,
+                np.deg2rad(62),
+                0.01,
+                5,
                 shader_config=shader,
             )
             for name in self.camera_names
@@ -181,7 +207,15 @@ class AEDBaseEnv(BaseEnv):
 
     @property
     def _default_human_render_camera_configs(self) -> CameraConfig:
-        return CameraConfig("render_camera", sapien_utils.look_at(*CAMERAS["front"]), 640, 480, np.deg2rad(62), 0.01, 5)
+        return CameraConfig(
+            "render_camera",
+            sapien_utils.look_at(*CAMERAS["front"]),
+            640,
+            480,
+            np.deg2rad(62),
+            0.01,
+            5,
+        )
 
     def reset(self, seed: int | None = None, options: dict | None = None):
         """ManiSkill's reset, plus `options["env_index"]` (switch environment).
@@ -218,7 +252,8 @@ class AEDBaseEnv(BaseEnv):
         self.env_spec = self._choose_environment()
         self.table = build_room(self.scene, self.env_spec)
         self.distractors: list[Actor] = [
-            build_distractor(self.scene, spec, f"distractor_{i}") for i, spec in enumerate(self.env_spec.distractors)
+            build_distractor(self.scene, spec, f"distractor_{i}")
+            for i, spec in enumerate(self.env_spec.distractors)
         ]
         if self.demonstrator:
             recolour_robot(self.agent.robot, DEMONSTRATOR_TINT)
@@ -234,7 +269,9 @@ class AEDBaseEnv(BaseEnv):
     # --- episodes -------------------------------------------------------------------------
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         rng = np.random.default_rng(int(self._episode_seed[0]))
-        qpos = REST_QPOS + rng.normal(0, self.robot_init_qpos_noise, len(REST_QPOS)) * (np.arange(9) < 7)
+        qpos = REST_QPOS + rng.normal(0, self.robot_init_qpos_noise, len(REST_QPOS)) * (
+            np.arange(9) < 7
+        )
         self.agent.reset(torch.as_tensor(qpos, dtype=torch.float32)[None])
         self.agent.robot.set_pose(sapien.Pose(p=list(ROBOT_BASE)))
         self._succeeded = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
@@ -244,12 +281,19 @@ class AEDBaseEnv(BaseEnv):
         """Randomise the poses of the task's objects (and place the distractors)."""
         raise NotImplementedError
 
-    def place_distractors(self, rng: np.random.Generator, region: tuple[float, float, float, float], keep_out: list[tuple[float, float, float]]) -> None:
+    def place_distractors(
+        self,
+        rng: np.random.Generator,
+        region: tuple[float, float, float, float],
+        keep_out: list[tuple[float, float, float]],
+    ) -> None:
         """Put the environment distractors at free spots of `region` (x0, x1, y0, y1)."""
         for actor in self.distractors:
             x, y = sample_free_xy(rng, region, 0.05, keep_out)
             keep_out.append((x, y, 0.05))
-            actor.set_pose(Pose.create_from_pq(p=[x, y, 0.001], q=rotation_z(rng.uniform(0, 2 * np.pi))))
+            actor.set_pose(
+                Pose.create_from_pq(p=[x, y, 0.001], q=rotation_z(rng.uniform(0, 2 * np.pi)))
+            )
 
     # --- evaluation -----------------------------------------------------------------------
     def evaluate(self) -> dict[str, torch.Tensor]:
@@ -289,7 +333,9 @@ class AEDBaseEnv(BaseEnv):
         """Stage progress: one per completed sub-goal, one more for success."""
         return info["stage"].float() + info["success"].float()
 
-    def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict) -> torch.Tensor:
+    def compute_normalized_dense_reward(
+        self, obs: Any, action: torch.Tensor, info: dict
+    ) -> torch.Tensor:
         return self.compute_dense_reward(obs, action, info) / (self.num_stages + 1)
 
     # --- expert ---------------------------------------------------------------------------
@@ -304,7 +350,9 @@ class AEDBaseEnv(BaseEnv):
         drawers); this default accepts any unsuccessful ending.
         """
         if kind not in self.error_kinds:
-            raise ValueError(f"unknown error kind {kind!r} for {self.task_name}; known: {list(self.error_kinds)}")
+            raise ValueError(
+                f"unknown error kind {kind!r} for {self.task_name}; known: {list(self.error_kinds)}"
+            )
         return "the task succeeded" if bool(self.get_info()["success"].any()) else ""
 
 

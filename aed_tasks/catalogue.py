@@ -30,48 +30,86 @@ DISTRACTOR_SHAPES: dict[str, tuple[str, ...]] = {
 # is also compared by its profile in `aed_tasks.assets.MESH_PROFILES`, sections aside.
 SHAPE_GENERATORS: dict[str, str] = {
     # distractors
-    "box": "box", "ball": "sphere", "capsule": "capsule", "vase": "revolve:vase",
-    "cylinder": "cylinder", "bottle": "revolve:bottle", "cone": "revolve:cone", "spindle": "revolve:spindle",
+    "box": "box",
+    "ball": "sphere",
+    "capsule": "capsule",
+    "vase": "revolve:vase",
+    "cylinder": "cylinder",
+    "bottle": "revolve:bottle",
+    "cone": "revolve:cone",
+    "spindle": "revolve:spindle",
     # Close Drawer: cabinets and drawer handles
-    "cabinet_plain": "cabinet:bare shell", "cabinet_plinth": "cabinet:shell on a recessed plinth",
-    "cabinet_legged": "cabinet:shell on four legs", "cabinet_crowned": "cabinet:shell with face frame and crown",
-    "drawer_bar": "handle:horizontal bar on two posts", "drawer_knob": "handle:one cylindrical knob",
-    "drawer_ledge": "handle:thin full-width ledge", "drawer_vertical_bar": "handle:vertical bar on two posts",
-    "drawer_twin_balls": "handle:two balls on stems", "drawer_block": "handle:one thick block",
+    "cabinet_plain": "cabinet:bare shell",
+    "cabinet_plinth": "cabinet:shell on a recessed plinth",
+    "cabinet_legged": "cabinet:shell on four legs",
+    "cabinet_crowned": "cabinet:shell with face frame and crown",
+    "drawer_bar": "handle:horizontal bar on two posts",
+    "drawer_knob": "handle:one cylindrical knob",
+    "drawer_ledge": "handle:thin full-width ledge",
+    "drawer_vertical_bar": "handle:vertical bar on two posts",
+    "drawer_twin_balls": "handle:two balls on stems",
+    "drawer_block": "handle:one thick block",
     # Press Button
-    "button_housing_block": "box", "button_housing_puck": "cylinder",
-    "button_housing_hex": "prism:hexagon", "button_housing_plinth": "stepped boxes",
-    "button_cap_disc": "cylinder", "button_cap_mushroom": "stacked cylinders (neck, head)",
-    "button_cap_square": "box", "button_cap_dome": "revolve:button_cap_dome",
+    "button_housing_block": "box",
+    "button_housing_puck": "cylinder",
+    "button_housing_hex": "prism:hexagon",
+    "button_housing_plinth": "stepped boxes",
+    "button_cap_disc": "cylinder",
+    "button_cap_mushroom": "stacked cylinders (neck, head)",
+    "button_cap_square": "box",
+    "button_cap_dome": "revolve:button_cap_dome",
     # Pick & Place
-    "mug_cylinder": "revolve:mug_cylinder", "cup_tapered": "revolve:cup_tapered",
-    "mug_barrel": "revolve:mug_barrel", "cup_waisted": "revolve:cup_waisted",
-    "bowl_round": "revolve:bowl_round", "bowl_straight": "revolve:bowl_straight",
-    "bowl_basin": "revolve:bowl_basin", "bowl_lipped": "revolve:bowl_lipped",
+    "mug_cylinder": "revolve:mug_cylinder",
+    "cup_tapered": "revolve:cup_tapered",
+    "mug_barrel": "revolve:mug_barrel",
+    "cup_waisted": "revolve:cup_waisted",
+    "bowl_round": "revolve:bowl_round",
+    "bowl_straight": "revolve:bowl_straight",
+    "bowl_basin": "revolve:bowl_basin",
+    "bowl_lipped": "revolve:bowl_lipped",
     # Move Glass Cup
-    "glass_tumbler": "revolve:glass_tumbler", "glass_tapered": "revolve:glass_tapered",
-    "glass_octagonal": "revolve:glass_octagonal", "glass_round_bottom": "revolve:glass_round_bottom",
-    "coaster_round": "cylinder", "coaster_square": "box",
-    "coaster_hexagon": "prism:hexagon", "coaster_oval": "prism:oval",
+    "glass_tumbler": "revolve:glass_tumbler",
+    "glass_tapered": "revolve:glass_tapered",
+    "glass_octagonal": "revolve:glass_octagonal",
+    "glass_round_bottom": "revolve:glass_round_bottom",
+    "coaster_round": "cylinder",
+    "coaster_square": "box",
+    "coaster_hexagon": "prism:hexagon",
+    "coaster_oval": "prism:oval",
     # Organize Table
-    "item_block": "box", "item_book": "box with covers and pages",
-    "item_canister": "lying drum with lids", "item_loaf": "box under a half drum roof",
-    "shelf_slab": "shelf:solid side slabs", "shelf_ledge": "shelf:slabs with a front ledge",
-    "shelf_posts": "shelf:square posts", "shelf_columns": "shelf:round columns",
+    "item_block": "box",
+    "item_book": "box with covers and pages",
+    "item_canister": "lying drum with lids",
+    "item_loaf": "box under a half drum roof",
+    "shelf_slab": "shelf:solid side slabs",
+    "shelf_ledge": "shelf:slabs with a front ledge",
+    "shelf_posts": "shelf:square posts",
+    "shelf_columns": "shelf:round columns",
     # Back to Box
-    "magic_cube_3x3": "cube:3x3 sticker grid", "die_pips": "cube:pips",
-    "magic_cube_2x2": "cube:2x2 sticker grid", "die_numbers": "cube:numerals",
-    "storage_box_plain": "open box:plain", "storage_box_rimmed": "open box:rim band",
-    "storage_box_handles": "open box:handle slots", "storage_box_footed": "open box:on feet",
-    "bookshelf_stepped": "bookshelf:stepped side panels", "bookshelf_ladder": "bookshelf:ladder frame",
-    "bookshelf_posts": "bookshelf:posts, books lying flat", "bookshelf_cabinet": "bookshelf:lidded cabinet",
+    "magic_cube_3x3": "cube:3x3 sticker grid",
+    "die_pips": "cube:pips",
+    "magic_cube_2x2": "cube:2x2 sticker grid",
+    "die_numbers": "cube:numerals",
+    "storage_box_plain": "open box:plain",
+    "storage_box_rimmed": "open box:rim band",
+    "storage_box_handles": "open box:handle slots",
+    "storage_box_footed": "open box:on feet",
+    "bookshelf_stepped": "bookshelf:stepped side panels",
+    "bookshelf_ladder": "bookshelf:ladder frame",
+    "bookshelf_posts": "bookshelf:posts, books lying flat",
+    "bookshelf_cabinet": "bookshelf:lidded cabinet",
     # Factory Packing
-    "box_plain": "packing box:plain", "box_flanged": "packing box:flanged rim",
-    "box_handled": "packing box:end handles", "box_cornered": "packing box:corner posts",
-    "product_carton": "box", "product_can": "cylinder",
-    "product_tub": "revolve:product_tub", "product_jar": "revolve:product_jar",
-    "conveyor_railed": "conveyor:side rails", "conveyor_rollered": "conveyor:end drums and motor housing",
-}  # fmt: skip
+    "box_plain": "packing box:plain",
+    "box_flanged": "packing box:flanged rim",
+    "box_handled": "packing box:end handles",
+    "box_cornered": "packing box:corner posts",
+    "product_carton": "box",
+    "product_can": "cylinder",
+    "product_tub": "revolve:product_tub",
+    "product_jar": "revolve:product_jar",
+    "conveyor_railed": "conveyor:side rails",
+    "conveyor_rollered": "conveyor:end drums and motor housing",
+}
 
 
 @dataclass(frozen=True)
@@ -152,7 +190,9 @@ def object_colours(split: str) -> tuple[Colour, ...]:
     return OBJECT_COLOURS[check_split(split)]
 
 
-def sample_material(rng: np.random.Generator, split: str, textured: bool = True, tint: float = 0.0) -> MaterialSpec:
+def sample_material(
+    rng: np.random.Generator, split: str, textured: bool = True, tint: float = 0.0
+) -> MaterialSpec:
     """A split material: a split texture (or none), under a near-white or split-coloured tint."""
     colour: Colour = (1.0, 1.0, 1.0, 1.0)
     if tint > 0:
@@ -162,28 +202,47 @@ def sample_material(rng: np.random.Generator, split: str, textured: bool = True,
     return MaterialSpec(colour=colour, texture=texture, roughness=float(rng.uniform(0.4, 0.9)))
 
 
-def sample_lighting(rng: np.random.Generator) -> tuple[tuple[float, float, float], tuple[LightSpec, ...]]:
+def sample_lighting(
+    rng: np.random.Generator,
+) -> tuple[tuple[float, float, float], tuple[LightSpec, ...]]:
     """Ambient light plus two or three directional lights (the first one shadowed)."""
     ambient = tuple(float(v) for v in np.full(3, rng.uniform(0.25, 0.4)))
     lights = []
     for i in range(int(rng.integers(2, 4))):
         azimuth, elevation = rng.uniform(0, 2 * np.pi), rng.uniform(np.pi / 4, np.pi / 2.2)
-        direction = (-np.cos(elevation) * np.cos(azimuth), -np.cos(elevation) * np.sin(azimuth), -np.sin(elevation))
+        direction = (
+            -np.cos(elevation) * np.cos(azimuth),
+            -np.cos(elevation) * np.sin(azimuth),
+            -np.sin(elevation),
+        )
         warmth = rng.uniform(-0.08, 0.08)
         strength = rng.uniform(0.9, 1.4) if i == 0 else rng.uniform(0.2, 0.5)
         colour = (strength * (1 + warmth), strength, strength * (1 - warmth))
-        lights.append(LightSpec(tuple(float(v) for v in direction), tuple(float(v) for v in colour)))
+        lights.append(
+            LightSpec(tuple(float(v) for v in direction), tuple(float(v) for v in colour))
+        )
     return ambient, tuple(lights)
 
 
-def sample_distractors(rng: np.random.Generator, split: str, count: int, exclude: Sequence[Colour] = ()) -> tuple[ObjectSpec, ...]:
+def sample_distractors(
+    rng: np.random.Generator, split: str, count: int, exclude: Sequence[Colour] = ()
+) -> tuple[ObjectSpec, ...]:
     """`count` unrelated objects of the split's distractor shapes and colours."""
     colours = [c for c in object_colours(split) if c not in exclude] or list(object_colours(split))
     out = []
     for _ in range(count):
         shape = pick(rng, DISTRACTOR_SHAPES[split])
-        size = (float(rng.uniform(0.025, 0.04)), float(rng.uniform(0.05, 0.11)))  # radius / half-extent, height
-        out.append(ObjectSpec(shape, size, MaterialSpec(colour=pick(rng, colours), roughness=float(rng.uniform(0.3, 0.8)))))
+        size = (
+            float(rng.uniform(0.025, 0.04)),
+            float(rng.uniform(0.05, 0.11)),
+        )  # radius / half-extent, height
+        out.append(
+            ObjectSpec(
+                shape,
+                size,
+                MaterialSpec(colour=pick(rng, colours), roughness=float(rng.uniform(0.3, 0.8))),
+            )
+        )
     return tuple(out)
 
 

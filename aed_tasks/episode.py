@@ -31,11 +31,15 @@ class Episode:
     error_kind: str | None = None
     error_onset: int | None = None  # index of the first intervened action
     rgb: dict[str, np.ndarray] = field(default_factory=dict)  # camera -> (T + 1, H, W, 3) uint8
-    depth: dict[str, np.ndarray] = field(default_factory=dict)  # camera -> (T + 1, H, W, 1) int16 mm
+    depth: dict[str, np.ndarray] = field(
+        default_factory=dict
+    )  # camera -> (T + 1, H, W, 1) int16 mm
     expert_speed: float = 0.0
     suboptimal: bool = False  # a failed first attempt, then success (demonstration quality)
     truncated: bool = False  # the time limit cut the episode (a script that did not finish)
-    outcome_problem: str = ""  # why an intervened episode's end is not its named failure ('' when it is)
+    outcome_problem: str = (
+        ""  # why an intervened episode's end is not its named failure ('' when it is)
+    )
     # sub-optimal demonstrations: where the failed first attempt ended, its kind, and why it
     # did not fail as named ('' when it did)
     first_attempt_steps: int | None = None

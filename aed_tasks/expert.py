@@ -72,7 +72,11 @@ class ScriptedExpert:
     """
 
     def __init__(
-        self, env: Any, rng: np.random.Generator, speed: float, error_rng: np.random.Generator | None = None
+        self,
+        env: Any,
+        rng: np.random.Generator,
+        speed: float,
+        error_rng: np.random.Generator | None = None,
     ):
         from mani_skill.examples.motionplanning.panda.motionplanner import (
             PandaArmMotionPlanningSolver,
@@ -84,11 +88,17 @@ class ScriptedExpert:
         self.error_rng = np.random.default_rng(0) if error_rng is None else error_rng
         self.speed = speed
         solver = PandaArmMotionPlanningSolver(
-            env, debug=False, vis=False, base_pose=self.base.agent.robot.pose,
-            visualize_target_grasp_pose=False, print_env_info=False,
-        )  # fmt: skip
+            env,
+            debug=False,
+            vis=False,
+            base_pose=self.base.agent.robot.pose,
+            visualize_target_grasp_pose=False,
+            print_env_info=False,
+        )
         self.planner = solver.planner
-        self.orientation = self.base.agent.tcp.pose.sp.q  # held fixed: the actions are positions only
+        self.orientation = (
+            self.base.agent.tcp.pose.sp.q
+        )  # held fixed: the actions are positions only
         self.gripper = OPEN
         self.onset: int | None = None
         self.actions: list[np.ndarray] = []
@@ -119,7 +129,9 @@ class ScriptedExpert:
             raise EpisodeOver
         if gripper is not None:
             self.gripper = gripper
-        action = np.concatenate([np.clip(delta / MAX_DELTA, -1, 1), [self.gripper]]).astype(np.float32)
+        action = np.concatenate([np.clip(delta / MAX_DELTA, -1, 1), [self.gripper]]).astype(
+            np.float32
+        )
         obs, _, _, truncated, info = self.env.step(action)
         self.actions.append(action)
         self.success.append(bool(_to_numpy(info["success"]).reshape(-1)[0]))
@@ -137,7 +149,9 @@ class ScriptedExpert:
         qpos = _to_numpy(self.base.agent.robot.get_qpos()[0])
         result = self.planner.plan_screw(goal, qpos, time_step=self.base.control_timestep)
         if result["status"] != "Success":
-            logger.debug("screw to %s blocked (%s): straight segment", np.round(target, 3), result["status"])
+            logger.debug(
+                "screw to %s blocked (%s): straight segment", np.round(target, 3), result["status"]
+            )
             return np.asarray([self.tcp, target])
         model, link = self.planner.pinocchio_model, self.planner.move_group_link_id
         origin = _to_numpy(self.base.agent.robot.pose.p[0])
@@ -150,9 +164,13 @@ class ScriptedExpert:
         return np.asarray([self.tcp, *path, target])
 
     def move_to(
-        self, target: np.ndarray, speed: float | None = None, tol: float = 0.006, settle: int = 12,
+        self,
+        target: np.ndarray,
+        speed: float | None = None,
+        tol: float = 0.006,
+        settle: int = 12,
         stop_before: Callable[[np.ndarray], bool] | None = None,
-    ) -> bool:  # fmt: skip
+    ) -> bool:
         """Follow a planned path to `target` at `speed` (m/step), then settle within `tol`.
 
         With `stop_before`, stop short before the first waypoint for which it is True and
@@ -211,7 +229,11 @@ def expert_speed(rng: np.random.Generator, demonstrator: bool) -> float:
 
 
 def solve(
-    env: Any, seed: int, error: ErrorSpec | None = None, env_index: int | None = None, suboptimal: bool = False
+    env: Any,
+    seed: int,
+    error: ErrorSpec | None = None,
+    env_index: int | None = None,
+    suboptimal: bool = False,
 ) -> Episode:
     """Run the task's expert for one episode (optionally with an injected error).
 
@@ -222,33 +244,53 @@ def solve(
     """
     base = env.unwrapped
     if error is not None and error.kind not in base.error_kinds:
-        raise ValueError(f"unknown error kind {error.kind!r} for {base.task_name}; known: {list(base.error_kinds)}")
+        raise ValueError(
+            f"unknown error kind {error.kind!r} for {base.task_name}; "
+            f"known: {list(base.error_kinds)}"
+        )
     if suboptimal and (error is not None or not base.recoverable_errors):
-        raise ValueError(f"suboptimal episodes of {base.task_name} need error=None and recoverable_errors")
+        raise ValueError(
+            f"suboptimal episodes of {base.task_name} need error=None and recoverable_errors"
+        )
     options = {} if env_index is None else {"env_index": env_index}
     obs, _ = env.reset(seed=seed, options=options)
     # one stream for the clean and every intervened episode of a seed: identical up to the onset
     rng = np.random.default_rng([seed, 0, int(suboptimal)])
-    error_rng = np.random.default_rng([seed, 1 + (base.error_kinds.index(error.kind) if error else 0)])
+    error_rng = np.random.default_rng(
+        [seed, 1 + (base.error_kinds.index(error.kind) if error else 0)]
+    )
     expert = ScriptedExpert(env, rng, expert_speed(rng, base.demonstrator), error_rng)
     first_attempt = None
     try:
         if suboptimal:
             first_try = ErrorSpec(str(rng.choice(base.recoverable_errors)))
             base.expert_script(expert, first_try)
-            first_attempt = (expert.steps, first_try.kind, _first_attempt_problem(base, expert, first_try.kind))
+            first_attempt = (
+                expert.steps,
+                first_try.kind,
+                _first_attempt_problem(base, expert, first_try.kind),
+            )
             expert.onset = None  # a demonstration: the failed attempt is part of it, not an error
             base.expert_script(expert, None)
         else:
             base.expert_script(expert, error)
     except EpisodeOver:  # the time limit cut the script: the caller decides (collection rejects it)
-        logger.debug("%s seed %d: the time limit cut the script at step %d", base.task_name, seed, expert.steps)
+        logger.debug(
+            "%s seed %d: the time limit cut the script at step %d",
+            base.task_name,
+            seed,
+            expert.steps,
+        )
     if error is not None and expert.onset is None:
-        raise RuntimeError(f"{base.task_name} script never marked the onset of error {error.kind!r}")
+        raise RuntimeError(
+            f"{base.task_name} script never marked the onset of error {error.kind!r}"
+        )
     episode = _episode(base, seed, error, expert, obs)
     episode.suboptimal = suboptimal
     if suboptimal and first_attempt is not None:
-        episode.first_attempt_steps, episode.first_attempt_kind, episode.first_attempt_problem = first_attempt
+        episode.first_attempt_steps, episode.first_attempt_kind, episode.first_attempt_problem = (
+            first_attempt
+        )
     episode.truncated = expert.truncated
     if error is not None:
         episode.outcome_problem = base.error_outcome(error.kind)
@@ -256,13 +298,16 @@ def solve(
 
 
 def _first_attempt_problem(base: Any, expert: ScriptedExpert, kind: str) -> str:
-    """'' when a sub-optimal demonstration's first attempt failed, in its named way, else why not."""
+    """'' when a sub-optimal demonstration's first attempt failed, in its named way, else why
+    not."""
     if any(expert.success):
         return "the first attempt succeeded"
     return base.error_outcome(kind)
 
 
-def _episode(base: Any, seed: int, error: ErrorSpec | None, expert: ScriptedExpert, first_obs: Any) -> Episode:
+def _episode(
+    base: Any, seed: int, error: ErrorSpec | None, expert: ScriptedExpert, first_obs: Any
+) -> Episode:
     steps = expert.steps
     labels = np.zeros(steps, dtype=np.uint8)
     if expert.onset is not None:
@@ -273,19 +318,32 @@ def _episode(base: Any, seed: int, error: ErrorSpec | None, expert: ScriptedExpe
         frames = [first_obs, *expert.observations]
         for camera, data in first_obs["sensor_data"].items():
             if "rgb" in data:
-                rgb[camera] = np.stack([_to_numpy(o["sensor_data"][camera]["rgb"][0]) for o in frames])
+                rgb[camera] = np.stack(
+                    [_to_numpy(o["sensor_data"][camera]["rgb"][0]) for o in frames]
+                )
             if "depth" in data:
-                depth[camera] = np.stack([_to_numpy(o["sensor_data"][camera]["depth"][0]) for o in frames])
+                depth[camera] = np.stack(
+                    [_to_numpy(o["sensor_data"][camera]["depth"][0]) for o in frames]
+                )
     return Episode(
         env_id=base.spec.id if base.spec is not None else f"AED-{base.task_name}-{base.split}",
-        task=base.task_name, split=base.split, env_index=base.env_index, seed=seed,
-        demonstrator=base.demonstrator, control_mode=base.control_mode,
+        task=base.task_name,
+        split=base.split,
+        env_index=base.env_index,
+        seed=seed,
+        demonstrator=base.demonstrator,
+        control_mode=base.control_mode,
         actions=np.asarray(expert.actions, dtype=np.float32).reshape(-1, 4),
-        success=np.asarray(expert.success, dtype=bool), fail=np.asarray(expert.fail, dtype=bool),
-        stage=np.asarray(expert.stage, dtype=np.int16), error_label=labels,
-        error_kind=None if error is None else error.kind, error_onset=expert.onset,
-        rgb=rgb, depth=depth, expert_speed=expert.speed,
-    )  # fmt: skip
+        success=np.asarray(expert.success, dtype=bool),
+        fail=np.asarray(expert.fail, dtype=bool),
+        stage=np.asarray(expert.stage, dtype=np.int16),
+        error_label=labels,
+        error_kind=None if error is None else error.kind,
+        error_onset=expert.onset,
+        rgb=rgb,
+        depth=depth,
+        expert_speed=expert.speed,
+    )
 
 
 # --- the departure check -------------------------------------------------------------------
@@ -362,18 +420,25 @@ class Departure:
         if not self.acts:
             return f"the action at the onset (step {self.onset}) is the clean expert's"
         if self.after is None:
-            return f"no measurable difference within {DEPARTURE_WINDOW} steps of the onset (step {self.onset})"
+            return (
+                f"no measurable difference within {DEPARTURE_WINDOW} steps of the onset "
+                f"(step {self.onset})"
+            )
         return ""
 
 
-def departure(clean: Trace, intervened: Trace, onset: int, window: int = DEPARTURE_WINDOW) -> Departure:
+def departure(
+    clean: Trace, intervened: Trace, onset: int, window: int = DEPARTURE_WINDOW
+) -> Departure:
     """Compare an intervened episode's trace with the clean one's around `onset`.
 
     Step t of a trace is the state after action t, so action `onset` (the first intervened
     one) shows first at index `onset`; everything before must be the same.
     """
     if clean.points.shape[1:] != intervened.points.shape[1:]:
-        raise ValueError(f"traces of different scenes: {clean.points.shape} vs {intervened.points.shape}")
+        raise ValueError(
+            f"traces of different scenes: {clean.points.shape} vs {intervened.points.shape}"
+        )
     if not 0 <= onset < len(intervened):
         raise ValueError(f"onset {onset} outside the intervened episode of {len(intervened)} steps")
     n = min(len(clean), len(intervened))

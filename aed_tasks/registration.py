@@ -60,11 +60,15 @@ class CPUGymWrapper(ManiSkillCPUGymWrapper, gym.utils.RecordConstructorArgs):
     that `gym.make` refuses; this one behaves the same and rebuilds from `env.spec`.
     """
 
-    def __init__(self, env: gym.Env, ignore_terminations: bool = False, record_metrics: bool = False):
+    def __init__(
+        self, env: gym.Env, ignore_terminations: bool = False, record_metrics: bool = False
+    ):
         gym.utils.RecordConstructorArgs.__init__(
             self, ignore_terminations=ignore_terminations, record_metrics=record_metrics
         )
-        super().__init__(env, ignore_terminations=ignore_terminations, record_metrics=record_metrics)
+        super().__init__(
+            env, ignore_terminations=ignore_terminations, record_metrics=record_metrics
+        )
 
 
 def env_id(task: str, split: str) -> str:
@@ -81,14 +85,18 @@ def register_task(cls: type[AEDBaseEnv]) -> type[AEDBaseEnv]:
     return cls
 
 
-def _register(uid: str, cls: type[AEDBaseEnv], max_episode_steps: int, kwargs: dict[str, Any]) -> None:
+def _register(
+    uid: str, cls: type[AEDBaseEnv], max_episode_steps: int, kwargs: dict[str, Any]
+) -> None:
     """ManiSkill's `register_env`, with `EpisodeTimeLimit` in place of its `TimeLimitWrapper`."""
     known = ms_registration.REGISTERED_ENVS.get(uid)
     if known is not None:
         if known.cls.__qualname__ != cls.__qualname__:
             raise ValueError(f"{uid} is already registered by {known.cls.__qualname__}")
         return  # the same task again (a reloaded module): keep the first registration
-    ms_registration.register(uid, cls, max_episode_steps=max_episode_steps, default_kwargs=deepcopy(kwargs))
+    ms_registration.register(
+        uid, cls, max_episode_steps=max_episode_steps, default_kwargs=deepcopy(kwargs)
+    )
     gym.register(
         uid,
         entry_point=partial(ms_registration.make, env_id=uid),

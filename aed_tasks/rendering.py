@@ -32,7 +32,11 @@ vec2 PCF_Samples[PCF_SampleCount] = {
 };
 """
 # picture formats of the `minimal` pack (ManiSkill sets them only for packs named "minimal")
-PICTURE_FORMATS = {"Color": "r8g8b8a8unorm", "ColorRaw": "r8g8b8a8unorm", "PositionSegmentation": "r16g16b16a16sint"}
+PICTURE_FORMATS = {
+    "Color": "r8g8b8a8unorm",
+    "ColorRaw": "r8g8b8a8unorm",
+    "PositionSegmentation": "r16g16b16a16sint",
+}
 
 
 def cache_root() -> Path:
@@ -58,7 +62,10 @@ def shader_pack_dir() -> Path:
         text = shadow.read_text()
         start, end = text.find(PCF_25), text.find("float ShadowMapPCF(")
         if start < 0 or end < 0:
-            raise RuntimeError(f"{source / 'common' / 'shadow.glsl'}: no 25-tap PCF kernel to replace (SAPIEN changed?)")
+            raise RuntimeError(
+                f"{source / 'common' / 'shadow.glsl'}: no 25-tap PCF kernel to replace "
+                "(SAPIEN changed?)"
+            )
         shadow.write_text(text[:start] + PCF_4 + "\n" + text[end:])
         for name in ("common", PACK_NAME):  # the pack includes ../common: both move in together
             target = root / name
@@ -76,7 +83,9 @@ def camera_shader_config() -> Any:
     """ManiSkill's `minimal` shader config, pointed at the `aed_minimal` pack."""
     from mani_skill.render.shaders import PREBUILT_SHADER_CONFIGS
 
-    return dataclasses.replace(PREBUILT_SHADER_CONFIGS[SOURCE_PACK], shader_pack=str(shader_pack_dir()))
+    return dataclasses.replace(
+        PREBUILT_SHADER_CONFIGS[SOURCE_PACK], shader_pack=str(shader_pack_dir())
+    )
 
 
 def use_minimal_picture_formats() -> None:

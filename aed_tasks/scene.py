@@ -24,21 +24,30 @@ UPRIGHT = [0.7071068, 0, -0.7071068, 0]  # turns SAPIEN's x-aligned cylinders (a
 
 def render_material(spec: MaterialSpec) -> sapien.render.RenderMaterial:
     """A SAPIEN material from a spec (textures are loaded once per process)."""
-    material = sapien.render.RenderMaterial(base_color=list(spec.colour), roughness=spec.roughness, metallic=spec.metallic)
+    material = sapien.render.RenderMaterial(
+        base_color=list(spec.colour), roughness=spec.roughness, metallic=spec.metallic
+    )
     if spec.texture is not None:
         material.base_color_texture = load_texture(spec.texture)
     return material
 
 
-def physical_material(friction: float = 1.0, restitution: float = 0.0) -> sapien.physx.PhysxMaterial:
-    return sapien.physx.PhysxMaterial(static_friction=friction, dynamic_friction=friction, restitution=restitution)
+def physical_material(
+    friction: float = 1.0, restitution: float = 0.0
+) -> sapien.physx.PhysxMaterial:
+    return sapien.physx.PhysxMaterial(
+        static_friction=friction, dynamic_friction=friction, restitution=restitution
+    )
 
 
 def build_room(scene: ManiSkillScene, spec: EnvironmentSpec) -> Actor:
     """Floor, back wall and the table (returned: tasks place objects on its top)."""
     floor = scene.create_actor_builder()
     floor.add_plane_repeated_visual(
-        pose=sapien.Pose(p=[0, 0, -TABLE_HEIGHT]), half_size=[4, 4], mat=render_material(spec.floor), texture_repeat=[2, 2]
+        pose=sapien.Pose(p=[0, 0, -TABLE_HEIGHT]),
+        half_size=[4, 4],
+        mat=render_material(spec.floor),
+        texture_repeat=[2, 2],
     )
     floor.add_plane_collision(sapien.Pose(p=[0, 0, -TABLE_HEIGHT], q=UPRIGHT))
     floor.initial_pose = sapien.Pose()
@@ -46,7 +55,9 @@ def build_room(scene: ManiSkillScene, spec: EnvironmentSpec) -> Actor:
 
     wall = scene.create_actor_builder()
     wall.add_box_visual(
-        pose=sapien.Pose(p=[WALL_X, 0, 0.4]), half_size=[0.02, 3.0, 1.6], material=render_material(spec.wall)
+        pose=sapien.Pose(p=[WALL_X, 0, 0.4]),
+        half_size=[0.02, 3.0, 1.6],
+        material=render_material(spec.wall),
     )
     wall.initial_pose = sapien.Pose()
     wall.build_static(name="wall")
@@ -60,8 +71,14 @@ def build_room(scene: ManiSkillScene, spec: EnvironmentSpec) -> Actor:
     leg_h = (TABLE_HEIGHT - TABLE_THICKNESS) / 2
     for sx in (-1, 1):
         for sy in (-1, 1):
-            p = [TABLE_CENTER_X + sx * (TABLE_HALF_SIZE[0] - 0.05), sy * (TABLE_HALF_SIZE[1] - 0.05), -TABLE_THICKNESS - leg_h]
-            table.add_box_visual(pose=sapien.Pose(p=p), half_size=[0.025, 0.025, leg_h], material=leg_material)
+            p = [
+                TABLE_CENTER_X + sx * (TABLE_HALF_SIZE[0] - 0.05),
+                sy * (TABLE_HALF_SIZE[1] - 0.05),
+                -TABLE_THICKNESS - leg_h,
+            ]
+            table.add_box_visual(
+                pose=sapien.Pose(p=p), half_size=[0.025, 0.025, leg_h], material=leg_material
+            )
     table.initial_pose = sapien.Pose()
     return table.build_static(name="table")
 
@@ -72,7 +89,11 @@ def add_lights(scene: ManiSkillScene, spec: EnvironmentSpec, shadows: bool = Tru
     for i, light in enumerate(spec.lights):
         cast = shadows and i == 0
         scene.add_directional_light(
-            list(light.direction), list(light.colour), shadow=cast, shadow_scale=1.0, shadow_map_size=256
+            list(light.direction),
+            list(light.colour),
+            shadow=cast,
+            shadow_scale=1.0,
+            shadow_map_size=256,
         )
 
 
@@ -93,11 +114,19 @@ def build_distractor(scene: ManiSkillScene, spec: ObjectSpec, name: str) -> Acto
         builder.add_sphere_visual(pose=ball, radius=radius, material=material)
     elif spec.shape == "capsule":
         half_length = max(height / 2 - radius, 0.005)
-        builder.add_capsule_collision(pose=upright, radius=radius, half_length=half_length, density=300)
-        builder.add_capsule_visual(pose=upright, radius=radius, half_length=half_length, material=material)
+        builder.add_capsule_collision(
+            pose=upright, radius=radius, half_length=half_length, density=300
+        )
+        builder.add_capsule_visual(
+            pose=upright, radius=radius, half_length=half_length, material=material
+        )
     elif spec.shape == "cylinder":
-        builder.add_cylinder_collision(pose=upright, radius=radius, half_length=height / 2, density=300)
-        builder.add_cylinder_visual(pose=upright, radius=radius, half_length=height / 2, material=material)
+        builder.add_cylinder_collision(
+            pose=upright, radius=radius, half_length=height / 2, density=300
+        )
+        builder.add_cylinder_visual(
+            pose=upright, radius=radius, half_length=height / 2, material=material
+        )
     else:  # a revolved mesh: vase, bottle, cone, spindle
         scale = [2 * radius, 2 * radius, height]
         path = str(mesh_path(spec.shape))

@@ -44,7 +44,15 @@ MANIFEST = "aed_collection.json"
 TMP_SUFFIX = ".tmp"
 ENV_ID_MODULE = "aed_tasks"
 IMAGE_KEYS = ("rgb", "depth", "seg", "segmentation")
-EPISODE_KEYS = ("episode_id", "episode_seed", "reset_kwargs", "elapsed_steps", "role", "env_index", "split")
+EPISODE_KEYS = (
+    "episode_id",
+    "episode_seed",
+    "reset_kwargs",
+    "elapsed_steps",
+    "role",
+    "env_index",
+    "split",
+)
 Check = Literal["quick", "full"]
 
 
@@ -130,7 +138,9 @@ def make_step_recorder(env: Any, record_env_states: bool = True) -> Any:
         def step(self, action: Any):
             obs, reward, terminated, truncated, info = self.env.step(action)
             self._keep(obs)
-            self.flags.append((bool(_first(terminated)), bool(_first(truncated)), float(_first(reward))))
+            self.flags.append(
+                (bool(_first(terminated)), bool(_first(truncated)), float(_first(reward)))
+            )
             return obs, reward, terminated, truncated, info
 
         def take(self) -> RecordedSteps:
@@ -139,9 +149,11 @@ def make_step_recorder(env: Any, record_env_states: bool = True) -> Any:
             steps = RecordedSteps(
                 obs=tree_stack(self.obs),
                 env_states=tree_stack(self.states) if self.states else None,
-                terminated=flags[:, 0].astype(bool), truncated=flags[:, 1].astype(bool),
-                rewards=flags[:, 2].astype(np.float32), reset_kwargs=self.reset_kwargs,
-            )  # fmt: skip
+                terminated=flags[:, 0].astype(bool),
+                truncated=flags[:, 1].astype(bool),
+                rewards=flags[:, 2].astype(np.float32),
+                reset_kwargs=self.reset_kwargs,
+            )
             self._clear()
             return steps
 
@@ -202,7 +214,9 @@ def _add_tree(group: Any, key: str, data: Tree, compression: Compression) -> Non
         group.create_dataset(key, data=data)
 
 
-def episode_entry(episode_id: int, episode: Episode, steps: RecordedSteps, **extra: Any) -> dict[str, Any]:
+def episode_entry(
+    episode_id: int, episode: Episode, steps: RecordedSteps, **extra: Any
+) -> dict[str, Any]:
     """ManiSkill's episode dict plus AED's fields."""
     seed = steps.reset_kwargs.get("seed", episode.seed)
     return {
@@ -228,7 +242,9 @@ def episode_entry(episode_id: int, episode: Episode, steps: RecordedSteps, **ext
 
 def _check_lengths(episode: Episode, steps: RecordedSteps) -> None:
     if steps.num_steps != len(episode):
-        raise ValueError(f"recorded {steps.num_steps} steps but the episode has {len(episode)} actions")
+        raise ValueError(
+            f"recorded {steps.num_steps} steps but the episode has {len(episode)} actions"
+        )
 
 
 class ShardWriter:
@@ -412,15 +428,21 @@ def read_shard(json_path: Path, check: Check = "quick") -> ShardInfo:
     try:
         body = json.loads(json_path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise CollectionError(json_path, f"corrupt json ({e}); delete this shard's .json and .h5 and re-run") from e
+        raise CollectionError(
+            json_path, f"corrupt json ({e}); delete this shard's .json and .h5 and re-run"
+        ) from e
     aed = body.get("aed") if isinstance(body, dict) else None
     if not isinstance(aed, dict) or aed.get("format") != FORMAT:
-        raise CollectionError(json_path, f"not an AED trajectory json (no aed.format == {FORMAT!r})")
+        raise CollectionError(
+            json_path, f"not an AED trajectory json (no aed.format == {FORMAT!r})"
+        )
     if not h5_path.exists():
         raise CollectionError(json_path, f"its h5 {h5_path.name} is missing")
     size = h5_path.stat().st_size
     if size != aed.get("h5_bytes"):
-        raise CollectionError(h5_path, f"corrupt: {size} bytes, its json recorded {aed.get('h5_bytes')}")
+        raise CollectionError(
+            h5_path, f"corrupt: {size} bytes, its json recorded {aed.get('h5_bytes')}"
+        )
     if check == "full" and sha256(h5_path) != aed.get("h5_sha256"):
         raise CollectionError(h5_path, "corrupt: sha256 differs from the one its json recorded")
     episodes = body.get("episodes")
@@ -451,13 +473,23 @@ def _episode_ref(h5_path: Path, h5: Any, entry: Any) -> EpisodeRef:
         if key not in group or len(group[key]) != steps:
             raise CollectionError(h5_path, f"{traj}/{key} is missing or not {steps} long")
     if entry["role"] not in ROLES:
-        raise CollectionError(h5_path.with_suffix(".json"), f"{traj}: unknown role {entry['role']!r}")
+        raise CollectionError(
+            h5_path.with_suffix(".json"), f"{traj}: unknown role {entry['role']!r}"
+        )
     return EpisodeRef(
-        path=h5_path, traj=traj, role=entry["role"], task=entry.get("task", ""), split=entry["split"],
-        env_index=int(entry["env_index"]), length=steps, seed=int(entry["episode_seed"]),
-        success=bool(entry.get("success", False)), error_kind=entry.get("error_kind"),
-        error_onset=entry.get("error_onset"), suboptimal=bool(entry.get("suboptimal", False)),
-    )  # fmt: skip
+        path=h5_path,
+        traj=traj,
+        role=entry["role"],
+        task=entry.get("task", ""),
+        split=entry["split"],
+        env_index=int(entry["env_index"]),
+        length=steps,
+        seed=int(entry["episode_seed"]),
+        success=bool(entry.get("success", False)),
+        error_kind=entry.get("error_kind"),
+        error_onset=entry.get("error_onset"),
+        suboptimal=bool(entry.get("suboptimal", False)),
+    )
 
 
 def scan_collection(root: Path, check: Check = "quick") -> Collection:
@@ -483,12 +515,19 @@ def scan_collection(root: Path, check: Check = "quick") -> Collection:
             if name[:-3] + ".json" not in names:
                 collection.uncommitted.append(path)
         else:
-            raise CollectionError(path, "foreign file in a collection folder (only <shard>.h5/.json and "
-                                        f"{MANIFEST} belong here); move it elsewhere")  # fmt: skip
+            raise CollectionError(
+                path,
+                "foreign file in a collection folder (only <shard>.h5/.json and "
+                f"{MANIFEST} belong here); move it elsewhere",
+            )
     leftovers = collection.temporaries + collection.uncommitted
     if leftovers:
-        logger.warning("%s: %d leftover(s) of an interrupted collection, not read: %s",
-                       root, len(leftovers), ", ".join(p.name for p in leftovers))  # fmt: skip
+        logger.warning(
+            "%s: %d leftover(s) of an interrupted collection, not read: %s",
+            root,
+            len(leftovers),
+            ", ".join(p.name for p in leftovers),
+        )
     return collection
 
 

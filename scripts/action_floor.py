@@ -37,7 +37,8 @@ class Config:
 
 
 def privileged_inputs(data: Path) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per action: [TCP xyz, fingers, t / 100, stage-target offset / 10 cm] (N, 9), position action (N, 3)."""
+    """Per action: [TCP xyz, fingers, t / 100, stage-target offset / 10 cm] (N, 9), position action
+    (N, 3)."""
     inputs, actions = [], []
     for ref in (e for e in load_episodes(data) if e.success):
         with h5py.File(ref.path, "r") as h5:
@@ -48,13 +49,20 @@ def privileged_inputs(data: Path) -> tuple[torch.Tensor, torch.Tensor]:
         offset = (stage_subgoals(tcp, stage) - tcp)[:n] / 0.1
         inputs.append(np.concatenate([proprio[:n], np.arange(n)[:, None] / 100.0, offset], axis=1))
         actions.append(action[:, :3])
-    return torch.tensor(np.concatenate(inputs), dtype=torch.float32), torch.tensor(np.concatenate(actions), dtype=torch.float32)
+    return torch.tensor(np.concatenate(inputs), dtype=torch.float32), torch.tensor(
+        np.concatenate(actions), dtype=torch.float32
+    )
 
 
 def held_out_mse(x: torch.Tensor, y: torch.Tensor, steps: int, seed: int) -> float:
     torch.manual_seed(seed)
-    model = torch.nn.Sequential(torch.nn.Linear(x.shape[1], 256), torch.nn.ReLU(), torch.nn.Linear(256, 256), torch.nn.ReLU(),
-                                torch.nn.Linear(256, 3))  # fmt: skip
+    model = torch.nn.Sequential(
+        torch.nn.Linear(x.shape[1], 256),
+        torch.nn.ReLU(),
+        torch.nn.Linear(256, 256),
+        torch.nn.ReLU(),
+        torch.nn.Linear(256, 3),
+    )
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
     order = torch.randperm(len(x))
     train, test = order[: int(0.8 * len(x))], order[int(0.8 * len(x)) :]
@@ -72,7 +80,9 @@ def main(cfg: Config) -> None:
     x, y = privileged_inputs(cfg.data)
     y = (y - y.mean(0)) / y.std(0).clamp_min(1e-3)  # as the policies standardise actions
     logger.info("%d actions of %s", len(x), cfg.data)
-    logger.info("with the stage target: %.3f of the variance", held_out_mse(x, y, cfg.steps, cfg.seed))
+    logger.info(
+        "with the stage target: %.3f of the variance", held_out_mse(x, y, cfg.steps, cfg.seed)
+    )
     logger.info("without it: %.3f", held_out_mse(x[:, :6], y, cfg.steps, cfg.seed))
 
 

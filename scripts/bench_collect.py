@@ -74,9 +74,16 @@ def raw_replay(env, h5_path: Path) -> float:
 
 def bench(cfg: Config) -> dict:
     collect_cfg = CollectConfig.from_preset(
-        task=cfg.task, split=cfg.split, envs=(0,), num_demos=0, num_successes=0, num_failures=0,
-        compression=cfg.compression, compression_level=cfg.compression_level, progress=False,
-    )  # fmt: skip
+        task=cfg.task,
+        split=cfg.split,
+        envs=(0,),
+        num_demos=0,
+        num_successes=0,
+        num_failures=0,
+        compression=cfg.compression,
+        compression_level=cfg.compression_level,
+        progress=False,
+    )
     runner = ExpertRunner(collect_cfg)
     runs: list[Run] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -96,14 +103,25 @@ def bench(cfg: Config) -> dict:
             if r == 0:
                 continue
             run = Run(env_index, steps, frames, collect_s, raw_s, size)
-            logger.info("run %d: %d steps, collect %.1f s, raw %.1f s, overhead %.1f%%",
-                        r, steps, collect_s, raw_s, 100 * run.overhead)  # fmt: skip
+            logger.info(
+                "run %d: %d steps, collect %.1f s, raw %.1f s, overhead %.1f%%",
+                r,
+                steps,
+                collect_s,
+                raw_s,
+                100 * run.overhead,
+            )
             runs.append(run)
     runner.close()
     return {
-        "config": {k: (list(v) if isinstance(v, tuple) else str(v) if isinstance(v, Path) else v)
-                   for k, v in asdict(cfg).items()},  # fmt: skip
-        "machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
+        "config": {
+            k: (list(v) if isinstance(v, tuple) else str(v) if isinstance(v, Path) else v)
+            for k, v in asdict(cfg).items()
+        },
+        "machine": {
+            "python": platform.python_version(),
+            "cpu": platform.processor() or platform.machine(),
+        },
         "runs": [{**asdict(run), "overhead": run.overhead} for run in runs],
         "collect_steps_per_s": statistics.median(r.steps / r.collect_s for r in runs),
         "raw_steps_per_s": statistics.median(r.steps / r.raw_s for r in runs),
@@ -115,19 +133,34 @@ def bench(cfg: Config) -> dict:
 def markdown(result: dict) -> str:
     c = result["config"]
     lines = [
-        f"# Collection overhead ({c['task']}-{c['split']}, {c['compression']}, {len(result['runs'])} runs)",
+        (
+            f"# Collection overhead ({c['task']}-{c['split']}, {c['compression']}, "
+            f"{len(result['runs'])} runs)"
+        ),
         "",
         "| run | env | steps | collect (s) | raw (s) | collect steps/s | raw steps/s | overhead |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for i, r in enumerate(result["runs"], 1):
-        lines.append(f"| {i} | {r['env_index']} | {r['steps']} | {r['collect_s']:.1f} | {r['raw_s']:.1f} | "
-                     f"{r['steps'] / r['collect_s']:.1f} | {r['steps'] / r['raw_s']:.1f} | {100 * r['overhead']:.1f}% |")  # fmt: skip
+        lines.append(
+            f"| {i} | {r['env_index']} | {r['steps']} | {r['collect_s']:.1f} | {r['raw_s']:.1f} | "
+            f"{r['steps'] / r['collect_s']:.1f} | {r['steps'] / r['raw_s']:.1f} | "
+            f"{100 * r['overhead']:.1f}% |"
+        )
     lines += [
         "",
-        f"- median collect rate: {result['collect_steps_per_s']:.1f} steps/s; raw env: {result['raw_steps_per_s']:.1f} steps/s",
-        f"- median overhead (planning + recording + compression + atomic write): **{100 * result['overhead']:.1f}%** (target <= 30%)",
-        f"- disk: {result['bytes_per_frame'] / 1024:.1f} KiB per stored frame (RGB-D 160x120, obs + env states)",
+        (
+            f"- median collect rate: {result['collect_steps_per_s']:.1f} steps/s; raw env: "
+            f"{result['raw_steps_per_s']:.1f} steps/s"
+        ),
+        (
+            "- median overhead (planning + recording + compression + atomic write): "
+            f"**{100 * result['overhead']:.1f}%** (target <= 30%)"
+        ),
+        (
+            f"- disk: {result['bytes_per_frame'] / 1024:.1f} KiB per stored frame "
+            "(RGB-D 160x120, obs + env states)"
+        ),
     ]
     return "\n".join(lines) + "\n"
 

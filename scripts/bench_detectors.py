@@ -63,14 +63,27 @@ class Row:
     train_frames_per_s: float
 
 
-def synthetic_batch(b: int, t: int, n: int = 5, length: int = 32) -> tuple[dict, tuple[torch.Tensor, torch.Tensor]]:
+def synthetic_batch(
+    b: int, t: int, n: int = 5, length: int = 32
+) -> tuple[dict, tuple[torch.Tensor, torch.Tensor]]:
     g = torch.Generator().manual_seed(0)
     labels = torch.zeros(b, t)
-    labels[b // 2:, t // 2:] = 1.0
-    rollouts = {"frames": torch.rand(b, t, 4, H, W, generator=g), "mask": torch.ones(b, t, dtype=torch.bool),
-                "lengths": torch.full((b,), t), "labels": labels, "is_failure": torch.arange(b) >= b // 2}  # fmt: skip
-    demos = {"frames": torch.rand(n, length, 4, H, W, generator=g), "mask": torch.ones(n, length, dtype=torch.bool)}
-    return {"demos": demos, "rollouts": rollouts}, (torch.randn(b, t, Config.history_dim), torch.randn(b, t, Config.task_dim))
+    labels[b // 2 :, t // 2 :] = 1.0
+    rollouts = {
+        "frames": torch.rand(b, t, 4, H, W, generator=g),
+        "mask": torch.ones(b, t, dtype=torch.bool),
+        "lengths": torch.full((b,), t),
+        "labels": labels,
+        "is_failure": torch.arange(b) >= b // 2,
+    }
+    demos = {
+        "frames": torch.rand(n, length, 4, H, W, generator=g),
+        "mask": torch.ones(n, length, dtype=torch.bool),
+    }
+    return {"demos": demos, "rollouts": rollouts}, (
+        torch.randn(b, t, Config.history_dim),
+        torch.randn(b, t, Config.task_dim),
+    )
 
 
 def synchronize(device: torch.device) -> None:
@@ -79,7 +92,8 @@ def synchronize(device: torch.device) -> None:
 
 
 def online_latency(detector, demos: dict, cfg: Config) -> tuple[float, float]:
-    """Median ms of one step around t=10 and t=200 (each step returns a float: it waits for the device)."""
+    """Median ms of one step around t=10 and t=200 (each step returns a float: it waits for the
+    device)."""
     device = torch.device(cfg.device)
     detector.eval()
     frame = torch.rand(4, H, W, device=device)
@@ -100,7 +114,9 @@ def train_throughput(detector, cfg: Config) -> float:
     batch, features = to_device(synthetic_batch(b, cfg.rollout_frames), device)
     if detector.trains_on == "successes":
         batch["rollouts"]["is_failure"][:] = False
-    optimizer = torch.optim.RMSprop([p for p in detector.parameters() if p.requires_grad], lr=1e-4, weight_decay=1e-2)
+    optimizer = torch.optim.RMSprop(
+        [p for p in detector.parameters() if p.requires_grad], lr=1e-4, weight_decay=1e-2
+    )
     rates = []
     for _ in range(cfg.train_iterations + 1):
         start = time.perf_counter()
@@ -124,22 +140,57 @@ def main(cfg: Config) -> None:
         torch.manual_seed(0)
         overrides = {}
         if DETECTORS.model_type(name).requires_policy:
-            overrides = {"history_dim": cfg.history_dim, **({"task_dim": cfg.task_dim} if name == "probe" else {})}
-        detector = make_detector(name, DETECTORS.preset(name, cfg.profile), **overrides).to(cfg.device)
+            overrides = {
+                "history_dim": cfg.history_dim,
+                **({"task_dim": cfg.task_dim} if name == "probe" else {}),
+            }
+        detector = make_detector(name, DETECTORS.preset(name, cfg.profile), **overrides).to(
+            cfg.device
+        )
         t10, t200 = online_latency(detector, batch["demos"], cfg)
         rate = train_throughput(detector, cfg)
-        rows.append(Row(name, detector.num_parameters(), PAPER_PARAMETERS.get(name), round(t10, 3), round(t200, 3), round(rate, 1)))
+        rows.append(
+            Row(
+                name,
+                detector.num_parameters(),
+                PAPER_PARAMETERS.get(name),
+                round(t10, 3),
+                round(t200, 3),
+                round(rate, 1),
+            )
+        )
         logger.info("%s: %s", name, rows[-1])
-    machine = torch.cuda.get_device_name(cfg.device) if cfg.device.startswith("cuda") else platform.processor() or platform.machine()
-    meta = {"profile": cfg.profile, "threads": cfg.threads, "torch": torch.__version__, "machine": machine, "device": cfg.device}
+    machine = (
+        torch.cuda.get_device_name(cfg.device)
+        if cfg.device.startswith("cuda")
+        else platform.processor() or platform.machine()
+    )
+    meta = {
+        "profile": cfg.profile,
+        "threads": cfg.threads,
+        "torch": torch.__version__,
+        "machine": machine,
+        "device": cfg.device,
+    }
     cfg.out.mkdir(parents=True, exist_ok=True)
-    (cfg.out / f"bench_detectors_{cfg.profile}.json").write_text(json.dumps({"meta": meta, "rows": [asdict(r) for r in rows]}, indent=2))
-    lines = [f"profile {cfg.profile}, {cfg.threads} torch thread(s), torch {torch.__version__}, {machine}", "",
-             "| detector | parameters | paper | step ms (t=10) | step ms (t=200) | train frames/s |",
-             "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    (cfg.out / f"bench_detectors_{cfg.profile}.json").write_text(
+        json.dumps({"meta": meta, "rows": [asdict(r) for r in rows]}, indent=2)
+    )
+    lines = [
+        (
+            f"profile {cfg.profile}, {cfg.threads} torch thread(s), "
+            f"torch {torch.__version__}, {machine}"
+        ),
+        "",
+        "| detector | parameters | paper | step ms (t=10) | step ms (t=200) | train frames/s |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
         paper = f"{r.paper_parameters / 1e6:.2f}M" if r.paper_parameters else "-"
-        lines.append(f"| {r.detector} | {r.parameters / 1e6:.2f}M | {paper} | {r.step_ms_t10:.3f} | {r.step_ms_t200:.3f} | {r.train_frames_per_s:.0f} |")
+        lines.append(
+            f"| {r.detector} | {r.parameters / 1e6:.2f}M | {paper} | {r.step_ms_t10:.3f} | "
+            f"{r.step_ms_t200:.3f} | {r.train_frames_per_s:.0f} |"
+        )
     table = "\n".join(lines)
     (cfg.out / f"bench_detectors_{cfg.profile}.md").write_text(table + "\n")
     print(table)

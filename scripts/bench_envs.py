@@ -87,7 +87,12 @@ class Row:
 
 
 def bench_pickcube(cfg: Config) -> list[float]:
-    env = gym.make("PickCube-v1", obs_mode="rgbd", control_mode="pd_ee_delta_pos", sensor_configs={"width": 160, "height": 120})
+    env = gym.make(
+        "PickCube-v1",
+        obs_mode="rgbd",
+        control_mode="pd_ee_delta_pos",
+        sensor_configs={"width": 160, "height": 120},
+    )
     rates = time_steps(env, cfg.runs, cfg.steps)
     env.close()
     return rates
@@ -109,7 +114,9 @@ def main(cfg: Config) -> None:
         expert_s = time.perf_counter() - start
         env.close()
         measured.append((env_id, rates, reset_s, reconfigure_s, expert_s, len(episode)))
-        logger.info("%s: %.1f steps/s, reconfigure %.2f s", env_id, statistics.median(rates), reconfigure_s)
+        logger.info(
+            "%s: %.1f steps/s, reconfigure %.2f s", env_id, statistics.median(rates), reconfigure_s
+        )
     after = bench_pickcube(cfg)
     logger.info("PickCube-v1 (after): %.1f steps/s", statistics.median(after))
     reference_rate = statistics.median(reference + after)
@@ -117,20 +124,37 @@ def main(cfg: Config) -> None:
     rows = [Row("PickCube-v1", reference_rate, 1.0, float("nan"), float("nan"), float("nan"), 0)]
     for env_id, rates, reset_s, reconfigure_s, expert_s, steps in measured:
         rate = statistics.median(rates)
-        rows.append(Row(env_id, rate, rate / reference_rate, reset_s, reconfigure_s, expert_s, steps))
+        rows.append(
+            Row(env_id, rate, rate / reference_rate, reset_s, reconfigure_s, expert_s, steps)
+        )
 
     cfg.out.mkdir(parents=True, exist_ok=True)
-    meta = {"machine": platform.node(), "python": platform.python_version(), "config": {k: str(v) for k, v in asdict(cfg).items()}}
-    (cfg.out / "bench_envs.json").write_text(json.dumps({"meta": meta, "pickcube_runs": reference + after, "rows": [asdict(r) for r in rows]}, indent=2))
+    meta = {
+        "machine": platform.node(),
+        "python": platform.python_version(),
+        "config": {k: str(v) for k, v in asdict(cfg).items()},
+    }
+    (cfg.out / "bench_envs.json").write_text(
+        json.dumps(
+            {"meta": meta, "pickcube_runs": reference + after, "rows": [asdict(r) for r in rows]},
+            indent=2,
+        )
+    )
     lines = [
-        "| env | steps/s (median) | x PickCube-v1 | reset s | reconfigure s | expert episode s (steps) |",
+        (
+            "| env | steps/s (median) | x PickCube-v1 | reset s | reconfigure s | "
+            "expert episode s (steps) |"
+        ),
         "|---|---|---|---|---|---|",
     ]
     for r in rows:
         expert = "" if r.expert_steps == 0 else f"{r.expert_episode_s:.1f} ({r.expert_steps})"
         reset = "" if np.isnan(r.reset_s) else f"{r.reset_s:.3f}"
         reconf = "" if np.isnan(r.reconfigure_s) else f"{r.reconfigure_s:.2f}"
-        lines.append(f"| {r.env_id} | {r.steps_per_s:.1f} | {r.ratio_to_pickcube:.2f} | {reset} | {reconf} | {expert} |")
+        lines.append(
+            f"| {r.env_id} | {r.steps_per_s:.1f} | {r.ratio_to_pickcube:.2f} | {reset} | "
+            f"{reconf} | {expert} |"
+        )
     table = "\n".join(lines)
     (cfg.out / "bench_envs.md").write_text(table + "\n")
     print(table)

@@ -57,8 +57,10 @@ def sync(device: torch.device) -> None:
 def online_latency(policy, cfg: Config, device: torch.device) -> dict[int, float]:
     """Median step time (ms) at t = 10 and 200: per step the median over `repeats` rollouts
     (after a warm-up one), then the median over the steps t-5 .. t+5."""
-    demos = {"frames": torch.rand(5, cfg.demo_frames, 4, H, W, device=device),
-             "proprio": torch.rand(5, cfg.demo_frames, 5, device=device)}  # fmt: skip
+    demos = {
+        "frames": torch.rand(5, cfg.demo_frames, 4, H, W, device=device),
+        "proprio": torch.rand(5, cfg.demo_frames, 5, device=device),
+    }
     frames = torch.rand(cfg.steps, 4, H, W, device=device)
     proprio = torch.rand(cfg.steps, 5, device=device)
     runs = []
@@ -81,12 +83,19 @@ def training_rate(policy, cfg: Config, device: torch.device) -> float:
     optimizer = torch.optim.RMSprop(policy.parameters(), lr=1e-4, weight_decay=1e-2)
     n = cfg.train_frames
     batch = {
-        "demos": {"frames": torch.rand(5, n, 4, H, W, device=device), "mask": torch.ones(5, n, dtype=torch.bool, device=device),
-                  "proprio": torch.rand(5, n, 5, device=device)},
-        "rollouts": {"frames": torch.rand(10, n, 4, H, W, device=device), "mask": torch.ones(10, n, dtype=torch.bool, device=device),
-                     "actions": torch.rand(10, n, 4, device=device) * 2 - 1, "proprio": torch.rand(10, n, 5, device=device),
-                     "subgoal": torch.rand(10, n, 3, device=device)},
-    }  # fmt: skip
+        "demos": {
+            "frames": torch.rand(5, n, 4, H, W, device=device),
+            "mask": torch.ones(5, n, dtype=torch.bool, device=device),
+            "proprio": torch.rand(5, n, 5, device=device),
+        },
+        "rollouts": {
+            "frames": torch.rand(10, n, 4, H, W, device=device),
+            "mask": torch.ones(10, n, dtype=torch.bool, device=device),
+            "actions": torch.rand(10, n, 4, device=device) * 2 - 1,
+            "proprio": torch.rand(10, n, 5, device=device),
+            "subgoal": torch.rand(10, n, 3, device=device),
+        },
+    }
     policy.train()
     rates = []
     for i in range(cfg.repeats + 1):
@@ -117,17 +126,35 @@ def main(cfg: Config) -> list[dict]:
             policy.set_action_stats(torch.rand(100, 4, device=device) * 2 - 1)
             latency = online_latency(policy, cfg, device)
             rate = training_rate(policy, cfg, device)
-            rows.append({"policy": name, "head": head, "profile": PROFILE[head], "params": policy.num_parameters(),
-                         "step_ms_t10": round(latency[10], 2), "step_ms_t200": round(latency[200], 2),
-                         "ratio_t200_t10": round(latency[200] / latency[10], 2), "train_frames_per_s": round(rate, 1)})  # fmt: skip
+            rows.append(
+                {
+                    "policy": name,
+                    "head": head,
+                    "profile": PROFILE[head],
+                    "params": policy.num_parameters(),
+                    "step_ms_t10": round(latency[10], 2),
+                    "step_ms_t200": round(latency[200], 2),
+                    "ratio_t200_t10": round(latency[200] / latency[10], 2),
+                    "train_frames_per_s": round(rate, 1),
+                }
+            )
             logger.info("%s", rows[-1])
     header = "| policy | head | params | step ms t=10 | step ms t=200 | t200/t10 | train frames/s |"
-    where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"{platform.machine()}, {torch.get_num_threads()} threads"
-    lines = [f"device: {cfg.device} ({where}), train_frames {cfg.train_frames}",
-             header, "|" + "---|" * 7]  # fmt: skip
+    where = (
+        torch.cuda.get_device_name(device)
+        if device.type == "cuda"
+        else f"{platform.machine()}, {torch.get_num_threads()} threads"
+    )
+    lines = [
+        f"device: {cfg.device} ({where}), train_frames {cfg.train_frames}",
+        header,
+        "|" + "---|" * 7,
+    ]
     for r in rows:
-        lines.append(f"| {r['policy']} | {r['head']} | {r['params'] / 1e6:.2f}M | {r['step_ms_t10']} | "
-                     f"{r['step_ms_t200']} | {r['ratio_t200_t10']} | {r['train_frames_per_s']} |")  # fmt: skip
+        lines.append(
+            f"| {r['policy']} | {r['head']} | {r['params'] / 1e6:.2f}M | {r['step_ms_t10']} | "
+            f"{r['step_ms_t200']} | {r['ratio_t200_t10']} | {r['train_frames_per_s']} |"
+        )
     print("\n".join(lines))
     if cfg.out is not None:
         cfg.out.write_text(json.dumps(rows, indent=1))

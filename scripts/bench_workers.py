@@ -47,10 +47,33 @@ def run_once(cfg: Config, checkpoint: Path, threads: str | None) -> float:
     if threads is not None:
         env["AED_WORKER_THREADS"] = threads
     with tempfile.TemporaryDirectory() as out:
-        args = [str(Path(sys.executable).with_name("aed")), "rollout", "--task", cfg.task, "--policy", "dct",
-                "--checkpoint", str(checkpoint), "--demos", str(cfg.demos), "--out", out, "--envs",
-                *map(str, cfg.envs), "--num-episodes", "1", "--shard-size", "1", "--horizon", str(cfg.horizon),
-                "--num-demos", "1", "--workers", str(cfg.workers), "--no-progress"]  # fmt: skip
+        args = [
+            str(Path(sys.executable).with_name("aed")),
+            "rollout",
+            "--task",
+            cfg.task,
+            "--policy",
+            "dct",
+            "--checkpoint",
+            str(checkpoint),
+            "--demos",
+            str(cfg.demos),
+            "--out",
+            out,
+            "--envs",
+            *map(str, cfg.envs),
+            "--num-episodes",
+            "1",
+            "--shard-size",
+            "1",
+            "--horizon",
+            str(cfg.horizon),
+            "--num-demos",
+            "1",
+            "--workers",
+            str(cfg.workers),
+            "--no-progress",
+        ]
         start = time.perf_counter()
         subprocess.run(args, check=True, env=env, capture_output=True)
         return time.perf_counter() - start
@@ -67,13 +90,21 @@ def main(cfg: Config) -> dict:
             times["share"].append(run_once(cfg, checkpoint, None))
             times["defaults"].append(run_once(cfg, checkpoint, "0"))
     medians = {k: statistics.median(v) for k, v in times.items()}
-    result = {"config": {k: str(v) if isinstance(v, Path) else v for k, v in vars(cfg).items()}, "cpus": os.cpu_count(),
-              "seconds": times, "median_seconds": medians, "speedup": medians["defaults"] / medians["share"]}  # fmt: skip
+    result = {
+        "config": {k: str(v) if isinstance(v, Path) else v for k, v in vars(cfg).items()},
+        "cpus": os.cpu_count(),
+        "seconds": times,
+        "median_seconds": medians,
+        "speedup": medians["defaults"] / medians["share"],
+    }
     cfg.out.parent.mkdir(parents=True, exist_ok=True)
     cfg.out.write_text(json.dumps(result, indent=1))
-    print(f"{len(cfg.envs)} rollouts x {cfg.horizon} steps on {cfg.workers} workers, {os.cpu_count()} cores: median "
-          f"{medians['share']:.1f} s with each worker's share of the cores, {medians['defaults']:.1f} s with the "
-          f"libraries' defaults ({result['speedup']:.2f}x)")  # fmt: skip
+    print(
+        f"{len(cfg.envs)} rollouts x {cfg.horizon} steps on {cfg.workers} workers, "
+        f"{os.cpu_count()} cores: median {medians['share']:.1f} s with each worker's "
+        f"share of the cores, {medians['defaults']:.1f} s with the libraries' defaults "
+        f"({result['speedup']:.2f}x)"
+    )
     return result
 
 

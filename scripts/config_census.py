@@ -17,10 +17,22 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 LIBRARY = ("aed_tasks", "aed_models", "aed_eval")
-COMMANDS = ("collect", "train-policy", "train-detector", "rollout", "calibrate", "evaluate", "report", "demo",
-            "monitor", "render")  # fmt: skip
+COMMANDS = (
+    "collect",
+    "train-policy",
+    "train-detector",
+    "rollout",
+    "calibrate",
+    "evaluate",
+    "report",
+    "demo",
+    "monitor",
+    "render",
+)
 PROFILE_TABLE = re.compile(r"^[A-Z_]*(PROFILES|MINI|PAPER)[A-Z_]*\s*(:[^=]*)?=", re.MULTILINE)
-PROFILE_BRANCH = re.compile(r"profile\s*==\s*[\"'](mini|paper|demo)[\"']|def (for_profile|preset)\b")
+PROFILE_BRANCH = re.compile(
+    r"profile\s*==\s*[\"'](mini|paper|demo)[\"']|def (for_profile|preset)\b"
+)
 LINE_LIMIT = 100
 
 
@@ -38,10 +50,16 @@ def config_fields(files: list[Path]) -> tuple[int, int, int]:
     classes = fields = nones = 0
     for path in files:
         for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.ClassDef) and node.name.endswith("Config") and is_dataclass(node):
+            if (
+                isinstance(node, ast.ClassDef)
+                and node.name.endswith("Config")
+                and is_dataclass(node)
+            ):
                 classes += 1
                 for item in node.body:
-                    if isinstance(item, ast.AnnAssign) and "ClassVar" not in ast.unparse(item.annotation):
+                    if isinstance(item, ast.AnnAssign) and "ClassVar" not in ast.unparse(
+                        item.annotation
+                    ):
                         fields += 1
                         nones += isinstance(item.value, ast.Constant) and item.value.value is None
     return classes, fields, nones
@@ -61,7 +79,9 @@ def cli_flags() -> int:
     aed = Path(sys.executable).with_name("aed")
     total = 0
     for command in COMMANDS:
-        text = subprocess.run([str(aed), command, "--help"], capture_output=True, text=True, check=True).stdout
+        text = subprocess.run(
+            [str(aed), command, "--help"], capture_output=True, text=True, check=True
+        ).stdout
         total += len(set(re.findall(r"^[│ ]\s*(--[a-z0-9-.]+)", text, re.MULTILINE)) - {"--help"})
     return total
 

@@ -56,10 +56,15 @@ def spread(n: int, size: int) -> list[int]:
 
 def episodes(n: int, envs: dict, first_seed: int) -> list[tuple[str, int, int]]:
     """(split, seed, env index) of n episodes: half base, half novel, spread over each catalogue."""
-    per_split = {"base": spread((n + 1) // 2, len(envs["base"].unwrapped.catalogue)),
-                 "novel": spread(n // 2, len(envs["novel"].unwrapped.catalogue))}  # fmt: skip
-    return [(split, first_seed + 2 * k + (split == "novel"), index)
-            for split, indices in per_split.items() for k, index in enumerate(indices)]  # fmt: skip
+    per_split = {
+        "base": spread((n + 1) // 2, len(envs["base"].unwrapped.catalogue)),
+        "novel": spread(n // 2, len(envs["novel"].unwrapped.catalogue)),
+    }
+    return [
+        (split, first_seed + 2 * k + (split == "novel"), index)
+        for split, indices in per_split.items()
+        for k, index in enumerate(indices)
+    ]
 
 
 def measure(kind: str | None, runs: list[tuple[str, int, int]], envs: dict, clean: dict) -> dict:
@@ -87,8 +92,10 @@ def measure(kind: str | None, runs: list[tuple[str, int, int]], envs: dict, clea
         for what in filter(None, (ep.outcome_problem, problem)):
             problems.append(f"{split} env {env_index} seed {seed}: {what}")
     return {
-        "kind": kind or "clean", "episodes": len(outcomes),
-        "success_rate": float(np.mean(outcomes)) if outcomes else float("nan"), "target": "success" if kind is None else "failure",
+        "kind": kind or "clean",
+        "episodes": len(outcomes),
+        "success_rate": float(np.mean(outcomes)) if outcomes else float("nan"),
+        "target": "success" if kind is None else "failure",
         "named_failure_rate": float(np.mean(named)) if named else None,
         "departure_rate": float(np.mean(departs)) if departs else None,
         "truncated": int(truncated),
@@ -96,8 +103,9 @@ def measure(kind: str | None, runs: list[tuple[str, int, int]], envs: dict, clea
         "min_length": int(np.min(lengths)) if lengths else 0,
         "max_length": int(np.max(lengths)) if lengths else 0,
         "seconds_per_episode": (time.perf_counter() - start) / max(len(outcomes), 1),
-        "unsuccessful_clean": failures, "problems": problems,
-    }  # fmt: skip
+        "unsuccessful_clean": failures,
+        "problems": problems,
+    }
 
 
 def measure_task(task: str, cfg: Config) -> list[dict]:
@@ -137,9 +145,9 @@ def main(cfg: Config) -> None:
         for r in results:
             rate = r["success_rate"] if r["kind"] == "clean" else 1 - r["success_rate"]
             rows.append(
-                f"| {task} | {r['kind']} | {r['episodes']} | {rate:.0%} | {percent(r['named_failure_rate'])} "
-                f"| {percent(r['departure_rate'])} | {r['truncated']} | {r['mean_length']:.0f} "
-                f"| {r['seconds_per_episode']:.1f} |"
+                f"| {task} | {r['kind']} | {r['episodes']} | {rate:.0%} | "
+                f"{percent(r['named_failure_rate'])} | {percent(r['departure_rate'])} | "
+                f"{r['truncated']} | {r['mean_length']:.0f} | {r['seconds_per_episode']:.1f} |"
             )
     table = (
         "| task | episodes of | n | expert success (clean) / failure (error) | failed as named "

@@ -45,7 +45,9 @@ def pattern_mask(pattern: str, rng: np.random.Generator) -> np.ndarray:
         return ((np.floor(x * n) + np.floor(y * n)) % 2).astype(np.float32)
     if pattern == "stripes":
         n, angle = int(rng.integers(5, 12)), rng.uniform(0, np.pi)
-        return (np.sin((x * np.cos(angle) + y * np.sin(angle)) * 2 * np.pi * n) > 0).astype(np.float32)
+        return (np.sin((x * np.cos(angle) + y * np.sin(angle)) * 2 * np.pi * n) > 0).astype(
+            np.float32
+        )
     if pattern == "noise":
         return 0.6 * _smooth_noise(rng, 8) + 0.4 * _smooth_noise(rng, 32)
     if pattern == "marble":
@@ -54,7 +56,9 @@ def pattern_mask(pattern: str, rng: np.random.Generator) -> np.ndarray:
     if pattern == "tiles":
         n = int(rng.integers(3, 6))
         gx, gy = (x * n) % 1, (y * n) % 1
-        grout = (np.minimum(np.minimum(gx, 1 - gx), np.minimum(gy, 1 - gy)) < 0.05).astype(np.float32)
+        grout = (np.minimum(np.minimum(gx, 1 - gx), np.minimum(gy, 1 - gy)) < 0.05).astype(
+            np.float32
+        )
         return 1.0 - grout * 0.9
     if pattern == "dots":
         n = int(rng.integers(5, 10))
@@ -64,7 +68,9 @@ def pattern_mask(pattern: str, rng: np.random.Generator) -> np.ndarray:
         n = int(rng.integers(6, 12))
         a = (np.sin(x * 2 * np.pi * n) * np.sin(y * 2 * np.pi * n) > 0).astype(np.float32)
         return 0.5 * a + 0.5 * np.abs(np.sin(y * 2 * np.pi * n * 2))
-    raise ValueError(f"unknown texture pattern {pattern!r}; known: {sorted(sum(TEXTURE_PATTERNS.values(), ()))}")
+    raise ValueError(
+        f"unknown texture pattern {pattern!r}; known: {sorted(sum(TEXTURE_PATTERNS.values(), ()))}"
+    )
 
 
 def make_texture(pattern: str, colour_a: tuple, colour_b: tuple, seed: int) -> np.ndarray:
@@ -81,7 +87,9 @@ def write_textures(out: Path) -> int:
         palette = TEXTURE_PALETTES[split]
         for p, pattern in enumerate(patterns):
             for c, (colour_a, colour_b) in enumerate(palette):
-                rgb = make_texture(pattern, colour_a, colour_b, seed=1000 * p + c + (0 if split == "base" else 500))
+                rgb = make_texture(
+                    pattern, colour_a, colour_b, seed=1000 * p + c + (0 if split == "base" else 500)
+                )
                 path = out / "textures" / split / f"{pattern}_{c}.png"
                 path.parent.mkdir(parents=True, exist_ok=True)
                 cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
@@ -89,13 +97,13 @@ def write_textures(out: Path) -> int:
     return count
 
 
-
-
 def write_meshes(out: Path) -> int:
     """Unit-height visual meshes, one per object shape; collisions are built from primitives."""
     count = 0
     for name, profile in MESH_PROFILES.items():
-        mesh = trimesh.creation.revolve(np.asarray(profile["outline"], dtype=float), sections=profile["sections"])
+        mesh = trimesh.creation.revolve(
+            np.asarray(profile["outline"], dtype=float), sections=profile["sections"]
+        )
         path = out / "meshes" / f"{name}.obj"
         path.parent.mkdir(parents=True, exist_ok=True)
         mesh.export(path)
@@ -104,7 +112,9 @@ def write_meshes(out: Path) -> int:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--out", type=Path, default=ASSET_DIR)
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)

@@ -61,9 +61,11 @@ class Config:
     eval_every: int = 100
 
 
-def stage0_frames(data: Path, frames_per_episode: int, held_out: set[int], train_envs: int | None = None
-                  ) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:  # fmt: skip
-    """{train, held-out episodes, held-out envs}: frames (N, 4, H, W) and the stage-0 target xy (N, 2).
+def stage0_frames(
+    data: Path, frames_per_episode: int, held_out: set[int], train_envs: int | None = None
+) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
+    """{train, held-out episodes, held-out envs}: frames (N, 4, H, W) and the stage-0 target xy
+    (N, 2).
 
     Successful episodes only (a failed one may never end stage 0). One episode per (role,
     environment) of the training environments is held out."""
@@ -100,9 +102,18 @@ def stage0_frames(data: Path, frames_per_episode: int, held_out: set[int], train
 
 
 @torch.no_grad()
-def mean_error_cm(head: VisualHead, linear: torch.nn.Linear, frames: torch.Tensor, target: torch.Tensor, centre: torch.Tensor) -> float:
+def mean_error_cm(
+    head: VisualHead,
+    linear: torch.nn.Linear,
+    frames: torch.Tensor,
+    target: torch.Tensor,
+    centre: torch.Tensor,
+) -> float:
     head.eval()
-    pred = torch.cat([linear(head(frames[i : i + 256])) for i in range(0, len(frames), 256)]) * 0.1 + centre
+    pred = (
+        torch.cat([linear(head(frames[i : i + 256])) for i in range(0, len(frames), 256)]) * 0.1
+        + centre
+    )
     head.train()
     return float((pred - target).norm(dim=1).mean() * 100)
 
@@ -113,8 +124,11 @@ def main(cfg: Config) -> None:
     frames, target = sets["train"]
     centre = target.mean(0)
     baseline = {k: float((t - centre).norm(dim=1).mean() * 100) for k, (_, t) in sets.items()}
-    logger.info("frames: %s; predicting the mean: %s", {k: len(f) for k, (f, _) in sets.items()},
-                {k: f"{v:.1f} cm" for k, v in baseline.items()})  # fmt: skip
+    logger.info(
+        "frames: %s; predicting the mean: %s",
+        {k: len(f) for k, (f, _) in sets.items()},
+        {k: f"{v:.1f} cm" for k, v in baseline.items()},
+    )
     head = VisualHead(VisualHeadConfig(arch="small_cnn", out_dim=256, dropout=0.0, width=cfg.width))
     linear = torch.nn.Linear(256, 2)
     optimizer = torch.optim.Adam([*head.parameters(), *linear.parameters()], lr=cfg.lr)
@@ -128,9 +142,16 @@ def main(cfg: Config) -> None:
         loss.backward()
         optimizer.step()
         if step % cfg.eval_every == 0 or step == cfg.steps:
-            errors = {k: mean_error_cm(head, linear, f[:512], t[:512], centre) for k, (f, t) in sets.items()}
-            logger.info("step %d (%.0f s): mean xy error %s", step, time.perf_counter() - start,
-                        ", ".join(f"{k} {v:.1f} cm" for k, v in errors.items()))  # fmt: skip
+            errors = {
+                k: mean_error_cm(head, linear, f[:512], t[:512], centre)
+                for k, (f, t) in sets.items()
+            }
+            logger.info(
+                "step %d (%.0f s): mean xy error %s",
+                step,
+                time.perf_counter() - start,
+                ", ".join(f"{k} {v:.1f} cm" for k, v in errors.items()),
+            )
 
 
 if __name__ == "__main__":

@@ -32,8 +32,18 @@ PROFILES = ("mini", "paper")
 # The demo's profiles then -> the presets now: `aed demo --profile mini` ran the demo's counts
 # with mini models, which is now the `demo` preset.
 DEMO_PRESETS = {"mini": "demo", "paper": "paper"}
-TRAIN_FIELDS = ("epochs", "num_envs", "max_frames", "rollout_frames", "shift", "lr", "weight_decay",
-                "data", "out", "augment")  # fmt: skip
+TRAIN_FIELDS = (
+    "epochs",
+    "num_envs",
+    "max_frames",
+    "rollout_frames",
+    "shift",
+    "lr",
+    "weight_decay",
+    "data",
+    "out",
+    "augment",
+)
 
 
 def plain(x: Any) -> Any:
@@ -156,8 +166,12 @@ def demo_stages(profile: str) -> dict[str, Any]:
     from aed_eval.demo import DemoConfig, Stages
 
     seen: dict[str, list] = {"collect": [], "policy": [], "detector": [], "rollout": []}
-    patches = [(aed_eval.collect, "run_collection", "collect"), (aed_models.train.policy, "train_policy", "policy"),
-               (aed_models.train.detector, "train_detector", "detector"), (aed_eval.rollout, "run_rollouts", "rollout")]  # fmt: skip
+    patches = [
+        (aed_eval.collect, "run_collection", "collect"),
+        (aed_models.train.policy, "train_policy", "policy"),
+        (aed_models.train.detector, "train_detector", "detector"),
+        (aed_eval.rollout, "run_rollouts", "rollout"),
+    ]
     saved = [(module, attr, getattr(module, attr)) for module, attr, _ in patches]
     try:
         for module, attr, key in patches:
@@ -184,8 +198,11 @@ def demo_stages(profile: str) -> dict[str, Any]:
 # --- weights: tiny trainings on synthetic collections (no simulation) ---------------------------
 def tensor_summary(state_dict: dict[str, torch.Tensor]) -> dict[str, list[float]]:
     """Per tensor: sum and sum of absolute values (float tensors only)."""
-    return {k: [float(v.double().sum()), float(v.double().abs().sum())] for k, v in sorted(state_dict.items())
-            if v.is_floating_point()}  # fmt: skip
+    return {
+        k: [float(v.double().sum()), float(v.double().abs().sum())]
+        for k, v in sorted(state_dict.items())
+        if v.is_floating_point()
+    }
 
 
 def policy_collection(root: Path) -> Path:
@@ -254,8 +271,15 @@ def trained_detectors(root: Path, policy_path: Path) -> dict[str, Any]:
         config = make_detector(name, **TINY[name]).config if not needs_policy else None
         if needs_policy:
             config = DETECTORS.preset(name, "mini", **sizes)
-        cfg = TrainDetectorConfig.from_preset("PickPlace", name, policy=str(policy_path) if needs_policy else None,
-                                              data=data, out=root / name, epochs=1, progress=False)  # fmt: skip
+        cfg = TrainDetectorConfig.from_preset(
+            "PickPlace",
+            name,
+            policy=str(policy_path) if needs_policy else None,
+            data=data,
+            out=root / name,
+            epochs=1,
+            progress=False,
+        )
         out[name] = tensor_summary(load_detector(train_detector(cfg, config)).state_dict())
     return out
 
@@ -293,9 +317,17 @@ def episode_summary(root: Path) -> list[dict[str, Any]]:
             group = h5[ref.traj]
             actions = group["actions"][()].astype(np.float64)
             labels = group["error_label"][()] if "error_label" in group else np.zeros(0)
-        rows.append({"shard": ref.path.name, "traj": ref.traj, "role": ref.role, "steps": int(len(actions)),
-                     "action_sum": [round(float(x), 4) for x in actions.sum(0)],
-                     "success": bool(ref.success), "labels": int(np.asarray(labels).sum())})  # fmt: skip
+        rows.append(
+            {
+                "shard": ref.path.name,
+                "traj": ref.traj,
+                "role": ref.role,
+                "steps": int(len(actions)),
+                "action_sum": [round(float(x), 4) for x in actions.sum(0)],
+                "success": bool(ref.success),
+                "labels": int(np.asarray(labels).sum()),
+            }
+        )
     return rows
 
 
@@ -304,8 +336,20 @@ def episodes(root: Path, policy_path: Path) -> dict[str, Any]:
     from aed_eval.rollout import RolloutConfig, run_rollouts
 
     state = root / "state"
-    run_collection(CollectConfig.from_preset(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
-                                 num_failures=1, shard_size=1, obs_mode="state", out=state, progress=False))  # fmt: skip
+    run_collection(
+        CollectConfig.from_preset(
+            task="PickPlace",
+            split="base",
+            envs=(0,),
+            num_demos=1,
+            num_successes=1,
+            num_failures=1,
+            shard_size=1,
+            obs_mode="state",
+            out=state,
+            progress=False,
+        )
+    )
     demos = root / "novel"
     run_collection(
         CollectConfig.from_preset(
@@ -313,9 +357,21 @@ def episodes(root: Path, policy_path: Path) -> dict[str, Any]:
         )
     )
     rollouts = root / "rollouts"
-    run_rollouts(RolloutConfig.from_preset(task="PressButton", policy="naive_dc", checkpoint=policy_path, split="novel",
-                               demos=demos, out=rollouts, envs=(0,), num_episodes=2, num_demos=1, horizon=6,
-                               progress=False))  # fmt: skip
+    run_rollouts(
+        RolloutConfig.from_preset(
+            task="PressButton",
+            policy="naive_dc",
+            checkpoint=policy_path,
+            split="novel",
+            demos=demos,
+            out=rollouts,
+            envs=(0,),
+            num_episodes=2,
+            num_demos=1,
+            horizon=6,
+            progress=False,
+        )
+    )
     return {
         "collect": episode_summary(state),
         "demos": episode_summary(demos),

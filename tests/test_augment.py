@@ -54,7 +54,9 @@ def test_torch_tensors_and_short_sequences():
     augment = RolloutAugment()
     frames = torch.arange(30).float()
     (out,) = augment(frames, rng=1)
-    assert isinstance(out, torch.Tensor) and torch.equal(out, frames[torch.as_tensor(augment.indices(30, 1))])
+    assert isinstance(out, torch.Tensor) and torch.equal(
+        out, frames[torch.as_tensor(augment.indices(30, 1))]
+    )
     assert len(augment.indices(1, 0)) >= 1  # never empty
     assert len(augment.indices(0, 0)) == 0
 

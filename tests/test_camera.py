@@ -55,7 +55,10 @@ def test_task_objects_are_visible_at_reset(task, split, make_env):
         free = pixel_counts(base.get_obs(), ids)
         base.agent.robot.set_pose(rest)
         for key, pixels in free.items():
-            assert pixels >= MIN_PIXELS, f"{task} {split} env {index}: {key} shows {pixels} px without the robot"
+            assert pixels >= MIN_PIXELS, (
+                f"{task} {split} env {index}: {key} shows {pixels} px without the robot"
+            )
             assert seen[key] >= MIN_VISIBLE_SHARE * pixels, (
-                f"{task} {split} env {index}: the robot hides {key} ({seen[key]} of {pixels} px visible)"
+                f"{task} {split} env {index}: the robot hides {key} "
+                f"({seen[key]} of {pixels} px visible)"
             )

@@ -1,4 +1,5 @@
-"""Catalogues: sizes of the paper's table, determinism, base/novel disjointness by name and to the eye."""
+"""Catalogues: sizes of the paper's table, determinism, base/novel disjointness by name and to the
+eye."""
 
 from __future__ import annotations
 
@@ -17,9 +18,14 @@ from aed_tasks.catalogue import SHAPE_GENERATORS
 from .conftest import ALL_TASKS
 
 PAPER_SIZES = {
-    "CloseDrawer": (18, 18), "PressButton": (27, 18), "PickPlace": (90, 42), "MoveGlassCup": (42, 20),
-    "OrganizeTable": (49, 25), "BackToBox": (60, 18), "FactoryPacking": (36, 12),
-}  # fmt: skip
+    "CloseDrawer": (18, 18),
+    "PressButton": (27, 18),
+    "PickPlace": (90, 42),
+    "MoveGlassCup": (42, 20),
+    "OrganizeTable": (49, 25),
+    "BackToBox": (60, 18),
+    "FactoryPacking": (36, 12),
+}
 
 
 @pytest.mark.parametrize("task", ALL_TASKS)
@@ -40,9 +46,13 @@ def test_base_and_novel_share_no_texture_colour_or_shape(task):
             set().union(*(e.shapes() for e in envs)),
         )
         assert all(e.split == split for e in envs)
-    for name, base, novel in zip(("textures", "colours", "shapes"), pools["base"], pools["novel"], strict=True):
+    for name, base, novel in zip(
+        ("textures", "colours", "shapes"), pools["base"], pools["novel"], strict=True
+    ):
         assert base, f"{task} base environments have no {name}"
-        assert not base & novel, f"{task} base and novel share {name}: {sorted(map(str, base & novel))[:5]}"
+        assert not base & novel, (
+            f"{task} base and novel share {name}: {sorted(map(str, base & novel))[:5]}"
+        )
 
 
 @pytest.mark.parametrize("task", ALL_TASKS)
@@ -64,15 +74,27 @@ def srgb_to_lab(rgb) -> np.ndarray:
     """CIELAB (D65) of sRGB colours in [0, 1], shape (..., 3)."""
     c = np.asarray(rgb, dtype=float)[..., :3]
     linear = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-    to_xyz = np.array([[0.4124564, 0.3575761, 0.1804375], [0.2126729, 0.7151522, 0.0721750], [0.0193339, 0.1191920, 0.9503041]])
+    to_xyz = np.array(
+        [
+            [0.4124564, 0.3575761, 0.1804375],
+            [0.2126729, 0.7151522, 0.0721750],
+            [0.0193339, 0.1191920, 0.9503041],
+        ]
+    )
     xyz = linear @ to_xyz.T / np.array([0.95047, 1.0, 1.08883])
     f = np.where(xyz > (6 / 29) ** 3, np.cbrt(xyz), xyz / (3 * (6 / 29) ** 2) + 4 / 29)
-    return np.stack([116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])], axis=-1)
+    return np.stack(
+        [116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])],
+        axis=-1,
+    )
 
 
 def min_delta_e(a, b) -> float:
     """The smallest CIE76 colour difference between any colour of `a` and any of `b`."""
-    lab_a, lab_b = srgb_to_lab(np.asarray(a, float).reshape(-1, 3)), srgb_to_lab(np.asarray(b, float).reshape(-1, 3))
+    lab_a, lab_b = (
+        srgb_to_lab(np.asarray(a, float).reshape(-1, 3)),
+        srgb_to_lab(np.asarray(b, float).reshape(-1, 3)),
+    )
     return float(np.linalg.norm(lab_a[:, None] - lab_b[None], axis=-1).min())
 
 
@@ -89,11 +111,17 @@ def texture_colours(split: str) -> np.ndarray:
 def test_palettes_of_the_splits_differ_to_the_eye():
     base, novel = (np.array(OBJECT_COLOURS[s])[:, :3] for s in ("base", "novel"))
     assert min_delta_e(base, novel) >= MIN_DELTA_E, "object colours"
-    assert min_delta_e(texture_colours("base"), texture_colours("novel")) >= MIN_DELTA_E, "texture colours"
+    assert min_delta_e(texture_colours("base"), texture_colours("novel")) >= MIN_DELTA_E, (
+        "texture colours"
+    )
     for split, colours in (("base", base), ("novel", novel)):
         tint = [DEMONSTRATOR_TINT[:3]]
-        assert min_delta_e(tint, colours) >= MIN_DELTA_E, f"demonstrator tint vs {split} object colours"
-        assert min_delta_e(tint, texture_colours(split)) >= MIN_DELTA_E, f"demonstrator tint vs {split} textures"
+        assert min_delta_e(tint, colours) >= MIN_DELTA_E, (
+            f"demonstrator tint vs {split} object colours"
+        )
+        assert min_delta_e(tint, texture_colours(split)) >= MIN_DELTA_E, (
+            f"demonstrator tint vs {split} textures"
+        )
 
 
 @functools.cache
@@ -124,7 +152,9 @@ def role_shapes(task: str) -> dict[str, dict[str, set[str]]]:
     roles: dict[str, dict[str, set[str]]] = {}
     for split in ("base", "novel"):
         for env in aed_tasks.get_task(task).get_catalogue(split):
-            pairs = [(k, o.shape) for k, o in env.objects.items()] + [("distractor", d.shape) for d in env.distractors]
+            pairs = [(k, o.shape) for k, o in env.objects.items()] + [
+                ("distractor", d.shape) for d in env.distractors
+            ]
             for role, shape in pairs:
                 roles.setdefault(role, {"base": set(), "novel": set()})[split].add(shape)
     return roles
@@ -138,7 +168,8 @@ def dense_outline(outline, samples: int = 200) -> np.ndarray:
 
 
 def profile_distance(a: str, b: str) -> float:
-    """Hausdorff distance between two revolved outlines (sections ignored: an octagon is no disguise)."""
+    """Hausdorff distance between two revolved outlines (sections ignored: an octagon is no
+    disguise)."""
     pa, pb = dense_outline(MESH_PROFILES[a]["outline"]), dense_outline(MESH_PROFILES[b]["outline"])
     d = np.linalg.norm(pa[:, None] - pb[None], axis=-1)
     return float(max(d.min(axis=0).max(), d.min(axis=1).max()))
@@ -148,17 +179,22 @@ def profile_distance(a: str, b: str) -> float:
 def test_no_shape_generator_serves_both_splits(task):
     for role, shapes in role_shapes(task).items():
         missing = (shapes["base"] | shapes["novel"]) - set(SHAPE_GENERATORS)
-        assert not missing, f"{task} {role}: shapes without a SHAPE_GENERATORS entry: {sorted(missing)}"
+        assert not missing, (
+            f"{task} {role}: shapes without a SHAPE_GENERATORS entry: {sorted(missing)}"
+        )
         generators = {s: {SHAPE_GENERATORS[x] for x in shapes[s]} for s in ("base", "novel")}
         shared = generators["base"] & generators["novel"]
         assert not shared, f"{task} {role}: base and novel shapes share generators {sorted(shared)}"
         for b, n in itertools.product(sorted(shapes["base"]), sorted(shapes["novel"])):
             if b in MESH_PROFILES and n in MESH_PROFILES:
                 distance = profile_distance(b, n)
-                assert distance >= MIN_PROFILE_DISTANCE, f"{task} {role}: {b} and {n} profiles differ by {distance:.3f}"
+                assert distance >= MIN_PROFILE_DISTANCE, (
+                    f"{task} {role}: {b} and {n} profiles differ by {distance:.3f}"
+                )
 
 
 def test_profile_distance_sees_a_faceted_copy():
-    """The check the shape test relies on: same outline, other sections, counts as the same shape."""
+    """The check the shape test relies on: same outline, other sections, counts as the same
+    shape."""
     assert profile_distance("coaster_hexagon", "coaster_oval") < MIN_PROFILE_DISTANCE
     assert profile_distance("glass_tumbler", "glass_octagonal") >= MIN_PROFILE_DISTANCE

@@ -25,8 +25,17 @@ from aed_tasks import trajectory
 
 AED = str(Path(sys.executable).with_name("aed"))
 # Physics only (fast): two environments, two successes and two failures each, one episode a shard.
-STATE_RUN = {"task": "PickPlace", "split": "base", "envs": (0, 1), "num_demos": 0, "num_successes": 2,
-             "num_failures": 2, "shard_size": 1, "obs_mode": "state", "progress": False}  # fmt: skip
+STATE_RUN = {
+    "task": "PickPlace",
+    "split": "base",
+    "envs": (0, 1),
+    "num_demos": 0,
+    "num_successes": 2,
+    "num_failures": 2,
+    "shard_size": 1,
+    "obs_mode": "state",
+    "progress": False,
+}
 
 
 def array_hashes(h5_path: Path) -> list[tuple[str, str]]:
@@ -45,7 +54,10 @@ def array_hashes(h5_path: Path) -> list[tuple[str, str]]:
 def digest(root: Path) -> dict[str, tuple]:
     """What a collection holds, shard by shard: episode entries and hashes of every array."""
     return {
-        shard.json_path.stem: (json.dumps(shard.body["episodes"], sort_keys=True), array_hashes(shard.h5_path))
+        shard.json_path.stem: (
+            json.dumps(shard.body["episodes"], sort_keys=True),
+            array_hashes(shard.h5_path),
+        )
         for shard in trajectory.scan_collection(root, check="full")
     }
 
@@ -54,8 +66,17 @@ def digest(root: Path) -> dict[str, tuple]:
 def rgbd_collection(tmp_path_factory) -> Path:
     """Pick & Place base, environment 0: one demonstration, one success, two failures, RGB-D."""
     out = tmp_path_factory.mktemp("rgbd")
-    cfg = CollectConfig.from_preset(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1, num_failures=2,
-                        shard_size=2, out=out, progress=False)  # fmt: skip
+    cfg = CollectConfig.from_preset(
+        task="PickPlace",
+        split="base",
+        envs=(0,),
+        num_demos=1,
+        num_successes=1,
+        num_failures=2,
+        shard_size=2,
+        out=out,
+        progress=False,
+    )
     summary = run_collection(cfg)
     assert summary.episodes == 4 and summary.skipped == 0
     return out
@@ -71,7 +92,12 @@ def state_collection(tmp_path_factory) -> Path:
 @pytest.mark.slow
 def test_episodes_on_disk_carry_roles_frames_and_labels(rgbd_collection):
     episodes = trajectory.scan_collection(rgbd_collection, check="full").episodes()
-    assert sorted(e.role for e in episodes) == ["agent_failure", "agent_failure", "agent_success", "demo"]
+    assert sorted(e.role for e in episodes) == [
+        "agent_failure",
+        "agent_failure",
+        "agent_success",
+        "demo",
+    ]
     kinds = {e.error_kind for e in episodes if e.role == "agent_failure"}
     assert len(kinds) == 2, "failures rotate through the error kinds"
     for ref in episodes:
@@ -94,7 +120,9 @@ def test_episodes_on_disk_carry_roles_frames_and_labels(rgbd_collection):
 
 @pytest.mark.slow
 def test_training_batches_of_real_episodes_keep_labels_aligned(rgbd_collection):
-    batch = EnvironmentIterations(load_episodes(rgbd_collection), "detector", max_frames=24, seed=0)[0]
+    batch = EnvironmentIterations(
+        load_episodes(rgbd_collection), "detector", max_frames=24, seed=0
+    )[0]
     rollouts = batch["rollouts"]
     assert rollouts["frames"].shape[2:] == (4, 120, 160) and batch["demos"]["frames"].shape[0] == 5
     assert 0 < rollouts["frames"][:, :, 3].max() <= 1.0
@@ -116,24 +144,46 @@ def test_maniskill_replay_tool_reproduces_the_episodes(rgbd_collection, tmp_path
         for suffix in (".h5", ".json"):
             shutil.copy(rgbd_collection / f"{stem}{suffix}", shard.with_suffix(suffix))
         result = subprocess.run(
-            [sys.executable, "-m", "mani_skill.trajectory.replay_trajectory", "--traj-path", str(shard), mode,
-             "--obs-mode", "state", "--allow-failure", "--save-traj"],
-            capture_output=True, text=True, timeout=300,
-        )  # fmt: skip
+            [
+                sys.executable,
+                "-m",
+                "mani_skill.trajectory.replay_trajectory",
+                "--traj-path",
+                str(shard),
+                mode,
+                "--obs-mode",
+                "state",
+                "--allow-failure",
+                "--save-traj",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-4000:]
         replayed = next(tmp_path.glob(f"{stem}.state.*.h5"))
         with h5py.File(shard, "r") as original, h5py.File(replayed, "r") as copy:
             assert sorted(copy) == sorted(original)
             for traj in original:
-                np.testing.assert_array_equal(copy[f"{traj}/actions"][()], original[f"{traj}/actions"][()])
-                assert bool(copy[f"{traj}/success"][-1]) == bool(original[f"{traj}/success"][-1]), traj
+                np.testing.assert_array_equal(
+                    copy[f"{traj}/actions"][()], original[f"{traj}/actions"][()]
+                )
+                assert bool(copy[f"{traj}/success"][-1]) == bool(original[f"{traj}/success"][-1]), (
+                    traj
+                )
 
 
 def test_data_info_counts_roles_and_kinds(rgbd_collection):
     info = summarize(rgbd_collection)
-    assert info["episodes"] == 4 and info["by_role"] == {"agent_failure": 2, "agent_success": 1, "demo": 1}
+    assert info["episodes"] == 4 and info["by_role"] == {
+        "agent_failure": 2,
+        "agent_success": 1,
+        "demo": 1,
+    }
     assert sum(info["error_kinds"].values()) == 2 and info["bytes_per_frame"] > 0
-    result = subprocess.run([AED, "data-info", str(rgbd_collection)], capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [AED, "data-info", str(rgbd_collection)], capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0, result.stderr
     assert "4 episodes" in result.stdout and "agent_failure 2" in result.stdout
 
@@ -141,10 +191,33 @@ def test_data_info_counts_roles_and_kinds(rgbd_collection):
 @pytest.mark.slow
 def test_killed_collection_resumes_to_the_same_episodes(state_collection, tmp_path):
     out = tmp_path / "interrupted"
-    args = [AED, "collect", "--task", "PickPlace", "--split", "base", "--envs", "0", "1", "--num-demos", "0",
-            "--num-successes", "2", "--num-failures", "2", "--shard-size", "1", "--obs-mode", "state",
-            "--no-progress", "--out", str(out)]  # fmt: skip
-    process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    args = [
+        AED,
+        "collect",
+        "--task",
+        "PickPlace",
+        "--split",
+        "base",
+        "--envs",
+        "0",
+        "1",
+        "--num-demos",
+        "0",
+        "--num-successes",
+        "2",
+        "--num-failures",
+        "2",
+        "--shard-size",
+        "1",
+        "--obs-mode",
+        "state",
+        "--no-progress",
+        "--out",
+        str(out),
+    ]
+    process = subprocess.Popen(
+        args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     try:
         deadline = time.monotonic() + 240
         while len(list(out.glob("agent_*.json"))) < 2:  # at least two shards committed
@@ -156,8 +229,12 @@ def test_killed_collection_resumes_to_the_same_episodes(state_collection, tmp_pa
         process.wait()
     committed = len(list(out.glob("agent_*.json")))
     assert 2 <= committed < 8, f"the kill came after {committed} of 8 shards"
-    (out / "agent_success_env001_0001.h5.tmp").write_bytes(b"half a shard")  # as a kill mid-write leaves
-    (out / "agent_failure_env001_0001.h5").write_bytes(b"renamed, json never written")  # a kill before the commit
+    (out / "agent_success_env001_0001.h5.tmp").write_bytes(
+        b"half a shard"
+    )  # as a kill mid-write leaves
+    (out / "agent_failure_env001_0001.h5").write_bytes(
+        b"renamed, json never written"
+    )  # a kill before the commit
 
     summary = run_collection(CollectConfig.from_preset(**STATE_RUN, out=out))
     assert summary.skipped == committed and summary.episodes == 8 - committed
@@ -167,31 +244,80 @@ def test_killed_collection_resumes_to_the_same_episodes(state_collection, tmp_pa
 
 @pytest.mark.slow
 def test_killed_rgbd_collection_resumes_to_the_same_frames(rgbd_collection, tmp_path):
-    """The same on rendered frames: every RGB-D array of the resumed run equals the uninterrupted one's."""
+    """The same on rendered frames: every RGB-D array of the resumed run equals the uninterrupted
+    one's."""
     out = tmp_path / "interrupted"
-    args = [AED, "collect", "--task", "PickPlace", "--split", "base", "--envs", "0", "--num-demos", "1",
-            "--num-successes", "1", "--num-failures", "2", "--shard-size", "2", "--no-progress", "--out", str(out)]  # fmt: skip
-    process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    args = [
+        AED,
+        "collect",
+        "--task",
+        "PickPlace",
+        "--split",
+        "base",
+        "--envs",
+        "0",
+        "--num-demos",
+        "1",
+        "--num-successes",
+        "1",
+        "--num-failures",
+        "2",
+        "--shard-size",
+        "2",
+        "--no-progress",
+        "--out",
+        str(out),
+    ]
+    process = subprocess.Popen(
+        args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     try:
         deadline = time.monotonic() + 300
-        while not list(out.glob("*.json")) or len(list(out.glob("*.json"))) < 2:  # the manifest and a shard
+        while (
+            not list(out.glob("*.json")) or len(list(out.glob("*.json"))) < 2
+        ):  # the manifest and a shard
             assert process.poll() is None, "aed collect ended before it could be killed"
             assert time.monotonic() < deadline, "aed collect committed nothing in time"
             time.sleep(0.05)
     finally:
         os.killpg(process.pid, signal.SIGKILL)
         process.wait()
-    run_collection(CollectConfig.from_preset(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
-                                 num_failures=2, shard_size=2, out=out, progress=False))  # fmt: skip
+    run_collection(
+        CollectConfig.from_preset(
+            task="PickPlace",
+            split="base",
+            envs=(0,),
+            num_demos=1,
+            num_successes=1,
+            num_failures=2,
+            shard_size=2,
+            out=out,
+            progress=False,
+        )
+    )
     resumed, original = digest(out), digest(rgbd_collection)
     assert resumed == original
-    assert any("obs/sensor_data/front/rgb" in name for _, hashes in resumed.values() for name, _ in hashes)
+    assert any(
+        "obs/sensor_data/front/rgb" in name for _, hashes in resumed.values() for name, _ in hashes
+    )
 
 
 @pytest.mark.slow
 def test_worker_count_does_not_change_the_frames(rgbd_collection, tmp_path):
-    run_collection(CollectConfig.from_preset(task="PickPlace", split="base", envs=(0,), num_demos=1, num_successes=1,
-                                 num_failures=2, shard_size=2, out=tmp_path, workers=2, progress=False))  # fmt: skip
+    run_collection(
+        CollectConfig.from_preset(
+            task="PickPlace",
+            split="base",
+            envs=(0,),
+            num_demos=1,
+            num_successes=1,
+            num_failures=2,
+            shard_size=2,
+            out=tmp_path,
+            workers=2,
+            progress=False,
+        )
+    )
     assert digest(tmp_path) == digest(rgbd_collection)
 
 
@@ -205,7 +331,11 @@ def test_worker_count_does_not_change_the_episodes(state_collection, tmp_path):
 def test_ray_executor_gives_the_same_episodes(state_collection, tmp_path):
     ray = pytest.importorskip("ray", reason="the optional `ray` extra is not installed")
     try:
-        run_collection(CollectConfig.from_preset(**{**STATE_RUN, "executor": "ray", "workers": 2}, out=tmp_path))
+        run_collection(
+            CollectConfig.from_preset(
+                **{**STATE_RUN, "executor": "ray", "workers": 2}, out=tmp_path
+            )
+        )
     finally:
         ray.shutdown()
     assert digest(tmp_path) == digest(state_collection)
@@ -218,7 +348,9 @@ def test_rerun_of_a_finished_collection_records_nothing(state_collection):
     assert digest(state_collection) == before
 
 
-@pytest.mark.parametrize("damage", ["json_garbage", "h5_truncated", "h5_same_size", "foreign_file", "other_settings"])
+@pytest.mark.parametrize(
+    "damage", ["json_garbage", "h5_truncated", "h5_same_size", "foreign_file", "other_settings"]
+)
 def test_corrupt_or_foreign_files_are_named_and_nothing_is_lost(state_collection, tmp_path, damage):
     root = tmp_path / "copy"
     shutil.copytree(state_collection, root)
@@ -241,10 +373,14 @@ def test_corrupt_or_foreign_files_are_named_and_nothing_is_lost(state_collection
     else:
         named = trajectory.MANIFEST
     files = {p.name: p.read_bytes() for p in root.iterdir()}
-    cfg = CollectConfig.from_preset(**{**STATE_RUN, "shard_size": 2} if damage == "other_settings" else STATE_RUN, out=root)
+    cfg = CollectConfig.from_preset(
+        **{**STATE_RUN, "shard_size": 2} if damage == "other_settings" else STATE_RUN, out=root
+    )
     with pytest.raises(trajectory.CollectionError, match=named.replace(".", r"\.")):
         run_collection(cfg)
-    assert {p.name: p.read_bytes() for p in root.iterdir()} == files, "a failed run changed the folder"
+    assert {p.name: p.read_bytes() for p in root.iterdir()} == files, (
+        "a failed run changed the folder"
+    )
 
 
 def test_retries_are_counted_shown_and_fail_loudly(state_collection, tmp_path):
@@ -253,12 +389,16 @@ def test_retries_are_counted_shown_and_fail_loudly(state_collection, tmp_path):
     assert summarize(root)["retries"]["rejected"] == retries(root)[1]
     shard = root / "agent_failure_env000_0000.json"  # retries live in the json: the h5's hash holds
     body = json.loads(shard.read_text())
-    body["episodes"][0].update(attempt=3, rejected=["not a 'no_grasp' failure: the mug moved 4 cm"] * 3)
+    body["episodes"][0].update(
+        attempt=3, rejected=["not a 'no_grasp' failure: the mug moved 4 cm"] * 3
+    )
     shard.write_text(json.dumps(body))
     info = summarize(root)
     assert info["retries"]["rejected"] == 3 + retries(state_collection)[1]
     assert "the mug moved 4 cm" in next(iter(info["retries"]["problems"]))
-    with pytest.raises(CollectError, match=r"rejected tries for 8 episodes .* > max_retry_rate=20%"):
+    with pytest.raises(
+        CollectError, match=r"rejected tries for 8 episodes .* > max_retry_rate=20%"
+    ):
         check_retry_rate(root, 0.2)
     check_retry_rate(root, 1.0)
 

@@ -30,7 +30,9 @@ H, W = 120, 160
 ONSET = 9
 
 
-def synthetic(role: str, env_index: int, seed: int, steps: int) -> tuple[Episode, trajectory.RecordedSteps]:
+def synthetic(
+    role: str, env_index: int, seed: int, steps: int
+) -> tuple[Episode, trajectory.RecordedSteps]:
     """An episode whose frame t has red = t, green = 100 + env_index, depth = 10 * t mm, and
     whose TCP x is t mm (fingers at 0.04 m)."""
     t = np.arange(steps + 1)
@@ -41,20 +43,37 @@ def synthetic(role: str, env_index: int, seed: int, steps: int) -> tuple[Episode
     failure = role == "agent_failure"
     labels = (np.arange(steps) >= ONSET).astype(np.uint8) if failure else np.zeros(steps, np.uint8)
     episode = Episode(
-        env_id="AED-PickPlace-base", task="PickPlace", split="base", env_index=env_index, seed=seed,
-        demonstrator=role == "demo", control_mode="pd_ee_delta_pos",
+        env_id="AED-PickPlace-base",
+        task="PickPlace",
+        split="base",
+        env_index=env_index,
+        seed=seed,
+        demonstrator=role == "demo",
+        control_mode="pd_ee_delta_pos",
         actions=np.tile(np.arange(steps, dtype=np.float32)[:, None], (1, 4)),
         success=np.arange(steps) == steps - 1 if not failure else np.zeros(steps, bool),
-        fail=np.zeros(steps, bool), stage=np.zeros(steps, np.int16), error_label=labels,
-        error_kind="no_grasp" if failure else None, error_onset=ONSET if failure else None,
-    )  # fmt: skip
+        fail=np.zeros(steps, bool),
+        stage=np.zeros(steps, np.int16),
+        error_label=labels,
+        error_kind="no_grasp" if failure else None,
+        error_onset=ONSET if failure else None,
+    )
     steps_rec = trajectory.RecordedSteps(
-        obs={"sensor_data": {"front": {"rgb": rgb, "depth": depth}},
-             "extra": {"tcp_pose": np.stack([t / 1000, 0 * t, 0 * t + 0.2, 1 + 0 * t, 0 * t, 0 * t, 0 * t], 1).astype(np.float32)},
-             "agent": {"qpos": np.tile(np.float32([0.0] * 7 + [0.04, 0.04]), (steps + 1, 1))}}, env_states=None,
-        terminated=np.zeros(steps, bool), truncated=np.zeros(steps, bool), rewards=np.zeros(steps, np.float32),
+        obs={
+            "sensor_data": {"front": {"rgb": rgb, "depth": depth}},
+            "extra": {
+                "tcp_pose": np.stack(
+                    [t / 1000, 0 * t, 0 * t + 0.2, 1 + 0 * t, 0 * t, 0 * t, 0 * t], 1
+                ).astype(np.float32)
+            },
+            "agent": {"qpos": np.tile(np.float32([0.0] * 7 + [0.04, 0.04]), (steps + 1, 1))},
+        },
+        env_states=None,
+        terminated=np.zeros(steps, bool),
+        truncated=np.zeros(steps, bool),
+        rewards=np.zeros(steps, np.float32),
         reset_kwargs={"seed": seed, "options": {"env_index": env_index}},
-    )  # fmt: skip
+    )
     return episode, steps_rec
 
 
@@ -81,7 +100,9 @@ def test_composition_shapes_and_roles(collection):
     assert demos["frames"].shape[2:] == (4, H, W) and demos["frames"].dtype == torch.float32
     assert rollouts["is_failure"].sum() == 10 and not rollouts["is_failure"][:10].any()
     green = rollouts["frames"][:, 0, 1, 0, 0] * 255
-    assert torch.allclose(green, torch.full_like(green, 100 + batch["env_index"]))  # one environment
+    assert torch.allclose(
+        green, torch.full_like(green, 100 + batch["env_index"])
+    )  # one environment
 
 
 def test_frames_labels_actions_align_and_pad(collection):
@@ -92,16 +113,22 @@ def test_frames_labels_actions_align_and_pad(collection):
         assert torch.equal(source, torch.arange(n))  # unaugmented: every frame, in order
         assert torch.allclose(r["frames"][i, :n, 3, 0, 0], source * 10 / DEPTH_SCALE_MM)
         expected = (source - 1 >= ONSET).float() if r["is_failure"][i] else torch.zeros(n)
-        assert torch.equal(r["labels"][i, :n], expected)  # successes all 0; failures switch at onset + 1
+        assert torch.equal(
+            r["labels"][i, :n], expected
+        )  # successes all 0; failures switch at onset + 1
         assert torch.equal(r["actions"][i, : n - 1, 0], source[: n - 1].float())
-        assert torch.equal(torch.round(r["proprio"][i, :n, 0] * 1000).long(), source)  # TCP x = t mm
+        assert torch.equal(
+            torch.round(r["proprio"][i, :n, 0] * 1000).long(), source
+        )  # TCP x = t mm
         assert torch.allclose(r["proprio"][i, :n, 3:], torch.tensor(0.04))  # finger joints
         assert r["mask"][i, :n].all() and not r["mask"][i, n:].any()
         assert (r["frames"][i, n:] == 0).all() and (r["labels"][i, n:] == 0).all()
 
 
 def test_augmentation_keeps_alignment_and_skips_demos(collection):
-    data = EnvironmentIterations(load_episodes(collection), "detector", augment=RolloutAugment(), seed=1)
+    data = EnvironmentIterations(
+        load_episodes(collection), "detector", augment=RolloutAugment(), seed=1
+    )
     batch = data[(2, 0)]
     r = batch["rollouts"]
     changed = 0
@@ -134,7 +161,9 @@ def test_compositions_and_replacement(collection):
 
 
 def test_deterministic_with_workers_and_epochs(collection):
-    data = EnvironmentIterations(load_episodes(collection), "detector", augment=RolloutAugment(), max_frames=12, seed=5)
+    data = EnvironmentIterations(
+        load_episodes(collection), "detector", augment=RolloutAugment(), max_frames=12, seed=5
+    )
     sampler = EnvironmentSampler(len(data), epochs=2, seed=5)
     order = list(sampler)
     assert sorted(order[:2]) == [(0, 0), (0, 1)] and sorted(order[2:]) == [(1, 0), (1, 1)]

@@ -18,7 +18,11 @@ from aed_tasks.expert import DEPARTURE_APART, Trace, departure, trace_episode
 
 # (seed, split, env index): seeds unused by the other expert tests, environments in both splits
 EPISODES = ((31, "base", 4), (32, "novel", 7))
-CASES = [(task, kind) for task in sorted(aed_tasks.TASKS) for kind in aed_tasks.get_task(task).error_kinds]
+CASES = [
+    (task, kind)
+    for task in sorted(aed_tasks.TASKS)
+    for kind in aed_tasks.get_task(task).error_kinds
+]
 _clean: dict[tuple[str, int], Trace] = {}
 
 
@@ -42,7 +46,9 @@ def test_intervened_episode_departs_at_its_onset(task, kind, make_env, envs):
             _clean[(task, seed)] = trace_episode(env, seed, None, index)[1]
         episode, trace = trace_episode(env, seed, ErrorSpec(kind), index)
         result = departure(_clean[(task, seed)], trace, episode.error_onset)
-        assert not result.problem, f"{task} {kind} ({split} env {index}, seed {seed}): {result.problem}"
+        assert not result.problem, (
+            f"{task} {kind} ({split} env {index}, seed {seed}): {result.problem}"
+        )
 
 
 def _trace(tcp_x: list[float], gripper: float = 1.0) -> Trace:
@@ -65,6 +71,8 @@ def test_departure_finds_early_and_invisible_onsets():
     drift = _trace([0.0, 0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08 + 2 * DEPARTURE_APART])
     drift.actions[2, 0] += 1e-3
     assert "no measurable difference" in departure(clean, drift, 2).problem  # apart only 6 steps on
-    assert departure(clean, _trace([0.0] * 9, gripper=-1.0), 0).after == 0  # the gripper closes at once
+    assert (
+        departure(clean, _trace([0.0] * 9, gripper=-1.0), 0).after == 0
+    )  # the gripper closes at once
     with pytest.raises(ValueError, match="onset 12 outside"):
         departure(clean, same, 12)

@@ -17,11 +17,21 @@ from aed_tasks.registration import CPUGymWrapper
 
 from .conftest import ALL_IDS, ALL_TASKS
 
-EXPECTED_TASKS = {"CloseDrawer", "PressButton", "PickPlace", "MoveGlassCup", "OrganizeTable", "BackToBox", "FactoryPacking"}
+EXPECTED_TASKS = {
+    "CloseDrawer",
+    "PressButton",
+    "PickPlace",
+    "MoveGlassCup",
+    "OrganizeTable",
+    "BackToBox",
+    "FactoryPacking",
+}
 
 
 def test_ids_follow_the_naming_contract():
-    assert set(ALL_TASKS) == EXPECTED_TASKS, "a task stopped registering, or a new one is not listed here"
+    assert set(ALL_TASKS) == EXPECTED_TASKS, (
+        "a task stopped registering, or a new one is not listed here"
+    )
     for task in ALL_TASKS:
         assert f"AED-{task}-base" in ALL_IDS and f"AED-{task}-novel" in ALL_IDS
         assert gym.spec(f"AED-{task}-novel").kwargs["split"] == "novel"
@@ -33,8 +43,14 @@ def test_make_reset_step_render(env_id, make_env):
     env = make_env(env_id)
     obs, info = env.reset(seed=7)
     front = obs["sensor_data"]["front"]
-    assert front["rgb"].shape == (1, IMAGE_HEIGHT, IMAGE_WIDTH, 3) and str(front["rgb"].dtype) == "torch.uint8"
-    assert front["depth"].shape == (1, IMAGE_HEIGHT, IMAGE_WIDTH, 1) and str(front["depth"].dtype) == "torch.int16"
+    assert (
+        front["rgb"].shape == (1, IMAGE_HEIGHT, IMAGE_WIDTH, 3)
+        and str(front["rgb"].dtype) == "torch.uint8"
+    )
+    assert (
+        front["depth"].shape == (1, IMAGE_HEIGHT, IMAGE_WIDTH, 1)
+        and str(front["depth"].dtype) == "torch.int16"
+    )
     rgb = front["rgb"][0].numpy()
     assert rgb.std() > 10, "the frame is blank"
     assert (front["depth"][0].numpy() > 0).mean() > 0.9, "depth has holes over most of the frame"
@@ -46,7 +62,9 @@ def test_make_reset_step_render(env_id, make_env):
     assert 0 <= int(info["stage"][0]) <= env.unwrapped.num_stages
 
 
-@pytest.mark.filterwarnings("ignore:.*is different from the unwrapped version")  # wrapped on purpose
+@pytest.mark.filterwarnings(
+    "ignore:.*is different from the unwrapped version"
+)  # wrapped on purpose
 @pytest.mark.parametrize("env_id", ALL_IDS)
 def test_gymnasium_env_checker(env_id, make_env):
     """Gymnasium's checker on the env as users make it for CPU use, closing included.
@@ -65,18 +83,32 @@ def test_an_env_is_rebuilt_from_its_spec_with_its_time_limit(make_env):
     env = make_env("AED-PressButton-base", obs_mode="state", max_episode_steps=3)
     assert gym_utils.find_max_episode_steps_value(env) == 3
     again = make_env(env.spec)
-    assert again.spec.kwargs == env.spec.kwargs and gym_utils.find_max_episode_steps_value(again) == 3
+    assert (
+        again.spec.kwargs == env.spec.kwargs and gym_utils.find_max_episode_steps_value(again) == 3
+    )
     again.reset(seed=0)
     truncated = [again.step(np.zeros(4, np.float32))[3] for _ in range(3)]
-    assert all(isinstance(t, torch.Tensor) and t.shape == (1,) for t in truncated)  # ManiSkill's batched type
+    assert all(
+        isinstance(t, torch.Tensor) and t.shape == (1,) for t in truncated
+    )  # ManiSkill's batched type
     assert [bool(t[0]) for t in truncated] == [False, False, True]
     default = make_env("AED-PressButton-base", obs_mode="state")
-    assert gym_utils.find_max_episode_steps_value(default) == aed_tasks.get_task("PressButton").max_episode_steps
+    assert (
+        gym_utils.find_max_episode_steps_value(default)
+        == aed_tasks.get_task("PressButton").max_episode_steps
+    )
 
 
 @pytest.mark.parametrize("terminate_on_success", [True, False])
-def test_success_is_latched_and_ends_the_episode_only_if_asked(terminate_on_success, make_env, monkeypatch):
-    env = make_env("AED-PressButton-base", obs_mode="state", env_index=0, terminate_on_success=terminate_on_success)
+def test_success_is_latched_and_ends_the_episode_only_if_asked(
+    terminate_on_success, make_env, monkeypatch
+):
+    env = make_env(
+        "AED-PressButton-base",
+        obs_mode="state",
+        env_index=0,
+        terminate_on_success=terminate_on_success,
+    )
     base = env.unwrapped
     evaluate = base.evaluate
 
@@ -98,7 +130,11 @@ def test_success_is_latched_and_ends_the_episode_only_if_asked(terminate_on_succ
 def test_solve_runs_the_script_to_its_end_whatever_the_termination(make_env):
     """Successes end like failures: retreat and rest after the success, in both settings."""
     episodes = [
-        solve(make_env("AED-PressButton-base", obs_mode="state", terminate_on_success=t), seed=3, env_index=1)
+        solve(
+            make_env("AED-PressButton-base", obs_mode="state", terminate_on_success=t),
+            seed=3,
+            env_index=1,
+        )
         for t in (True, False)
     ]
     for episode in episodes:
@@ -110,12 +146,18 @@ def test_solve_runs_the_script_to_its_end_whatever_the_termination(make_env):
 
 
 def test_solve_marks_an_episode_the_time_limit_cut(make_env):
-    episode = solve(make_env("AED-PressButton-base", obs_mode="state", max_episode_steps=20), seed=3, env_index=1)
+    episode = solve(
+        make_env("AED-PressButton-base", obs_mode="state", max_episode_steps=20),
+        seed=3,
+        env_index=1,
+    )
     assert episode.truncated and len(episode) == 20
 
 
 def test_batched_simulation_is_refused_with_a_way_out():
-    with pytest.raises(ValueError, match=r"num_envs=2: AED tasks run one env per process.*--workers"):
+    with pytest.raises(
+        ValueError, match=r"num_envs=2: AED tasks run one env per process.*--workers"
+    ):
         gym.make("AED-PickPlace-base", num_envs=2)
 
 
@@ -137,7 +179,9 @@ def test_seeded_resets_are_deterministic(task, make_env):
     frames_c, _ = rollout(4)
     np.testing.assert_array_equal(frames_a, frames_b)
     np.testing.assert_allclose(state_a, state_b, atol=1e-6)
-    assert not np.array_equal(frames_a[0], frames_c[0]), "a different seed gave the same initial scene"
+    assert not np.array_equal(frames_a[0], frames_c[0]), (
+        "a different seed gave the same initial scene"
+    )
 
 
 @pytest.mark.parametrize("task", ALL_TASKS)
@@ -187,8 +231,13 @@ def test_cameras_render_with_the_cheap_shadow_filter(make_env, tmp_path, monkeyp
     env.reset(seed=0)
     camera = env.unwrapped._sensors["front"]
     assert camera.config.shader_config.shader_pack == str(rendering.shader_pack_dir())
-    assert "PCF_SampleCount = 4;" in (rendering.shader_pack_dir().parent / "common" / "shadow.glsl").read_text()
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))  # a fresh cache is derived from SAPIEN's pack
+    assert (
+        "PCF_SampleCount = 4;"
+        in (rendering.shader_pack_dir().parent / "common" / "shadow.glsl").read_text()
+    )
+    monkeypatch.setenv(
+        "XDG_CACHE_HOME", str(tmp_path)
+    )  # a fresh cache is derived from SAPIEN's pack
     rendering.shader_pack_dir.cache_clear()
     try:
         fresh = rendering.shader_pack_dir()

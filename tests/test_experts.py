@@ -31,7 +31,9 @@ def test_expert_episode(task, kind, make_env):
             assert env.unwrapped.error_outcome(other), f"a clean {task} success passes as {other!r}"
     else:
         assert not episode.succeeded, f"{task} error {kind!r} still succeeded"
-        assert not episode.outcome_problem, f"{task} {kind!r} did not fail as named: {episode.outcome_problem}"
+        assert not episode.outcome_problem, (
+            f"{task} {kind!r} did not fail as named: {episode.outcome_problem}"
+        )
         onset = episode.error_onset
         assert 0 < onset < len(episode)
         assert not episode.error_label[:onset].any() and episode.error_label[onset:].all()
@@ -63,5 +65,7 @@ def test_suboptimal_demonstration_fails_first_then_succeeds(task, make_env):
     assert len(retried) > len(clean)
     # the first attempt failed, in its named way, before the second one started
     first = retried.first_attempt_steps
-    assert retried.first_attempt_kind in env.unwrapped.recoverable_errors and 0 < first < len(retried)
+    assert retried.first_attempt_kind in env.unwrapped.recoverable_errors and 0 < first < len(
+        retried
+    )
     assert retried.first_attempt_problem == "" and not retried.success[:first].any()

@@ -15,11 +15,15 @@ EXACT = ("recipes", "protocol", "demo")
 # Changes made on purpose since the fingerprint was stored: (path, value then, value now, why).
 INTENDED = [
     *(
-        (("protocol", f"collect/mini/{task}/base", "num_envs"), 4, 7,
-         "the mini protocol holds out 3 calibration environments beside its 4 training ones")
+        (
+            ("protocol", f"collect/mini/{task}/base", "num_envs"),
+            4,
+            7,
+            "the mini protocol holds out 3 calibration environments beside its 4 training ones",
+        )
         for task in fingerprint.TASKS
     ),
-]  # fmt: skip
+]
 
 
 def with_intended_changes(stored: dict) -> dict:

@@ -53,7 +53,9 @@ def test_aed_rejects_an_unknown_subcommand():
 
 
 def test_setup_rerun_is_a_quick_no_op():
-    result = subprocess.run(["bash", "scripts/setup.sh"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    result = subprocess.run(
+        ["bash", "scripts/setup.sh"], cwd=ROOT, capture_output=True, text=True, timeout=60
+    )
     assert result.returncode == 0, result.stderr
     assert "ready" in result.stderr
 
@@ -61,7 +63,14 @@ def test_setup_rerun_is_a_quick_no_op():
 def _setup_sh(call: str, **env: str) -> subprocess.CompletedProcess:
     """Source scripts/setup.sh (functions only) and run `call`; apt-get is stubbed out."""
     script = f"source scripts/setup.sh; set +e; apt-get() {{ echo APT-GET-RAN; return 1; }}; {call}"
-    return subprocess.run(["bash", "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=60, env={**os.environ, **env})
+    return subprocess.run(
+        ["bash", "-c", script],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, **env},
+    )
 
 
 def test_setup_takes_the_mirror_from_the_apt_sources_only(tmp_path):
@@ -73,11 +82,14 @@ def test_setup_takes_the_mirror_from_the_apt_sources_only(tmp_path):
         "Suites: bookworm bookworm-updates\nComponents: main\n\n"
         "Types: deb\nURIs: http://security.example/debian-security\nSuites: bookworm-security\n"
     )
-    (tmp_path / "sources.list.d" / "old.sources.disabled").write_text("Types: deb\nURIs: http://x/\nSuites: trixie\n")
+    (tmp_path / "sources.list.d" / "old.sources.disabled").write_text(
+        "Types: deb\nURIs: http://x/\nSuites: trixie\n"
+    )
     (tmp_path / "sources.list").write_text(
         "# deb http://commented.example/debian bookworm-backports main\n"
         "deb-src http://src.example/debian bookworm-backports main\n"
-        "deb [arch=amd64 signed-by=/usr/share/keyrings/k.gpg] http://backports.example/debian bookworm-backports main\n"
+        "deb [arch=amd64 signed-by=/usr/share/keyrings/k.gpg] http://backports.example/debian "
+        "bookworm-backports main\n"
     )
     found = {}
     for suite in ("bookworm", "bookworm-backports", "bookworm-security", "trixie"):
@@ -85,9 +97,11 @@ def test_setup_takes_the_mirror_from_the_apt_sources_only(tmp_path):
         assert result.returncode == 0, result.stderr
         found[suite] = result.stdout.strip()
     assert found == {
-        "bookworm": "https://mirror.example/debian", "bookworm-backports": "http://backports.example/debian",
-        "bookworm-security": "http://security.example/debian-security", "trixie": "",
-    }  # fmt: skip
+        "bookworm": "https://mirror.example/debian",
+        "bookworm-backports": "http://backports.example/debian",
+        "bookworm-security": "http://security.example/debian-security",
+        "trixie": "",
+    }
 
 
 def test_no_package_mirror_is_written_out():
@@ -108,13 +122,19 @@ def test_setup_without_a_configured_mirror_says_what_to_add(tmp_path):
 def test_ruff_is_clean():
     ruff = shutil.which("ruff", path=str(Path(sys.executable).parent))
     assert ruff, "ruff is a dev dependency: pip install -e .[dev]"
-    result = subprocess.run([ruff, "check", "."], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [ruff, "check", "."], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0, result.stdout
 
 
 def test_bad_input_is_one_named_error_line():
-    result = subprocess.run([AED, "collect", "--task", "Juggle"], capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [AED, "collect", "--task", "Juggle"], capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 2 and "unknown task 'Juggle'" in result.stderr
     assert "Traceback" not in result.stderr
-    result = subprocess.run([AED, "data-info", "/nonexistent/aed"], capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [AED, "data-info", "/nonexistent/aed"], capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 2 and "/nonexistent/aed: no such collection folder" in result.stderr

@@ -10,7 +10,9 @@ from aed_eval import metrics
 
 def curves(maxima, failed, kind="probability"):
     maxima = np.asarray(maxima, dtype=float)
-    return metrics.rollout_curves(maxima, np.asarray(failed, dtype=bool), metrics.thresholds(kind, maxima))
+    return metrics.rollout_curves(
+        maxima, np.asarray(failed, dtype=bool), metrics.thresholds(kind, maxima)
+    )
 
 
 FAILED = np.array([True] * 6 + [False] * 14)  # prevalence 0.3
@@ -36,7 +38,9 @@ def test_random_scores_are_chance():
     rng = np.random.default_rng(0)
     failed = rng.uniform(size=4000) < 0.25
     c = curves(rng.uniform(size=4000), failed)
-    assert c.auroc == pytest.approx(0.5, abs=0.03) and c.auprc == pytest.approx(failed.mean(), abs=0.03)
+    assert c.auroc == pytest.approx(0.5, abs=0.03) and c.auprc == pytest.approx(
+        failed.mean(), abs=0.03
+    )
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -84,24 +88,42 @@ def test_conformal_threshold_holds_its_false_alarm_rate(n, alpha):
 
 
 def test_conformal_threshold_edge_cases():
-    assert metrics.conformal_threshold(np.array([0.2, 0.4]), 0.1) == float("inf")  # too few to promise 10%
+    assert metrics.conformal_threshold(np.array([0.2, 0.4]), 0.1) == float(
+        "inf"
+    )  # too few to promise 10%
     assert metrics.conformal_threshold(np.arange(19.0), 0.1) > 17.0
     with pytest.raises(ValueError, match="alpha=1.5"):
         metrics.conformal_threshold(np.ones(5), 1.5)
 
 
 def test_alarm_rates_and_detection_delays():
-    scores = [np.array([0.0, 0.2, 0.9, 0.9]), np.array([0.1, 0.1, 0.1]), np.array([0.0, 0.95]), np.array([0.3])]
+    scores = [
+        np.array([0.0, 0.2, 0.9, 0.9]),
+        np.array([0.1, 0.1, 0.1]),
+        np.array([0.0, 0.95]),
+        np.array([0.3]),
+    ]
     failed = np.array([True, True, False, False])
     rates = metrics.alarm_rates(scores, failed, 0.5)
     assert (rates.tpr, rates.tnr, rates.balanced_accuracy) == (0.5, 0.5, 0.5)
-    assert rates.detection_step_mean == 2.0 and rates.detection_fraction_mean == pytest.approx(2 / 3)
-    delays = metrics.detection_delays(scores[:2] + [np.array([0.9, 0.0, 0.0, 0.0])], [1, 1, 2], 0.5, window=1)
-    assert delays["counts"] == {"early": 1, "on_time": 1, "late": 0, "missed": 1} and delays["delays"] == [1, -2]
+    assert rates.detection_step_mean == 2.0 and rates.detection_fraction_mean == pytest.approx(
+        2 / 3
+    )
+    delays = metrics.detection_delays(
+        scores[:2] + [np.array([0.9, 0.0, 0.0, 0.0])], [1, 1, 2], 0.5, window=1
+    )
+    assert delays["counts"] == {"early": 1, "on_time": 1, "late": 0, "missed": 1} and delays[
+        "delays"
+    ] == [1, -2]
 
 
 def test_frame_auroc_and_reference_scores():
-    assert metrics.frame_auroc([np.array([0.1, 0.9]), np.array([0.2, 0.3])], [np.array([0, 1]), np.array([0, 0])]) == 1.0
+    assert (
+        metrics.frame_auroc(
+            [np.array([0.1, 0.9]), np.array([0.2, 0.3])], [np.array([0, 1]), np.array([0, 0])]
+        )
+        == 1.0
+    )
     lengths = [3, 5]
     time_only = metrics.time_only_scores(lengths, horizon=4)
     np.testing.assert_allclose(time_only[1], [0, 0.25, 0.5, 0.75, 1.0])
@@ -113,7 +135,9 @@ def test_time_matched_auroc_compares_frames_of_the_same_bin_only():
     scores = [np.array([0.0, 0.0, 0.5, 0.5]), np.array([0.0, 0.0, 0.6, 0.4])]
     # bins of 2: bin 0 has no error frame; bin 1 pairs (0.5, 0.5) x (0.6, 0.4): 2 wins of 4
     assert metrics.time_matched_auroc(scores, labels, bin_width=2) == pytest.approx(0.5)
-    assert metrics.frame_auroc(scores, labels) == pytest.approx((4 * 2 + 2) / 12)  # every pair counts
+    assert metrics.frame_auroc(scores, labels) == pytest.approx(
+        (4 * 2 + 2) / 12
+    )  # every pair counts
     time_only = [np.arange(4.0), np.arange(4.0)]
     assert metrics.time_matched_auroc(time_only, labels, bin_width=1) == pytest.approx(0.5)
     assert np.isnan(metrics.time_matched_auroc([np.zeros(2)], [np.array([0, 0])]))
@@ -123,5 +147,7 @@ def test_time_matched_auroc_compares_frames_of_the_same_bin_only():
 
 def test_single_class_gives_undefined_areas():
     for failed in (np.ones(6, dtype=bool), np.zeros(6, dtype=bool)):
-        c = metrics.rollout_curves(np.linspace(0, 1, 6), failed, metrics.thresholds("probability", None))
+        c = metrics.rollout_curves(
+            np.linspace(0, 1, 6), failed, metrics.thresholds("probability", None)
+        )
         assert np.isnan(c.auroc) and np.isnan(c.auprc)

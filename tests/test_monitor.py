@@ -26,7 +26,9 @@ def env():
 @pytest.fixture(scope="module")
 def policy():
     torch.manual_seed(0)
-    config = POLICIES.preset("scan", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4))
+    config = POLICIES.preset(
+        "scan", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)
+    )
     return make_policy("scan", config).eval()
 
 
@@ -34,14 +36,23 @@ def policy():
 def demos():
     generator = torch.Generator().manual_seed(1)
     mask = torch.tensor([[True] * 6, [True] * 4 + [False] * 2])
-    return {"frames": torch.rand(2, 6, 4, 120, 160, generator=generator), "mask": mask,
-            "proprio": torch.rand(2, 6, 5, generator=generator)}  # fmt: skip
+    return {
+        "frames": torch.rand(2, 6, 4, 120, 160, generator=generator),
+        "mask": mask,
+        "proprio": torch.rand(2, 6, 5, generator=generator),
+    }
 
 
 def tiny_detector(name: str, policy) -> torch.nn.Module:
     torch.manual_seed(2)
     if name == "probe":
-        return make_detector(name, history_dim=policy.history_dim, task_dim=policy.task_dim, hidden_dim=16, embed_dim=8).eval()
+        return make_detector(
+            name,
+            history_dim=policy.history_dim,
+            task_dim=policy.task_dim,
+            hidden_dim=16,
+            embed_dim=8,
+        ).eval()
     return make_detector(name, arch="small_cnn", feature_dim=16, width=4, hidden_dim=16).eval()
 
 
@@ -52,7 +63,11 @@ def observed_frames(observations: list) -> torch.Tensor:
 
 
 def observed_proprio(observations: list) -> torch.Tensor:
-    return torch.from_numpy(np.concatenate([proprio_from_obs(o["extra"]["tcp_pose"], o["agent"]["qpos"]) for o in observations]))
+    return torch.from_numpy(
+        np.concatenate(
+            [proprio_from_obs(o["extra"]["tcp_pose"], o["agent"]["qpos"]) for o in observations]
+        )
+    )
 
 
 @pytest.mark.parametrize("name", ["probe", "lstm_ed"])
@@ -65,19 +80,31 @@ def test_online_scores_equal_offline_scores(env, policy, demos, name):
         obs, _, _, _, info = monitor.step(None)
         observations.append(obs)
         latencies.append(info["aed_latency_s"])
-        assert not info["aed_alarm"] and info["aed_env_step_s"] > 0 and info["aed_policy_latency_s"] > 0
+        assert (
+            not info["aed_alarm"]
+            and info["aed_env_step_s"] > 0
+            and info["aed_policy_latency_s"] > 0
+        )
     frames = observed_frames(observations)[None]
     mask = torch.ones(frames.shape[:2], dtype=torch.bool)
-    assert policy.config.proprio  # the mini policy reads the TCP and fingers from the live observation
+    assert (
+        policy.config.proprio
+    )  # the mini policy reads the TCP and fingers from the live observation
     with torch.inference_mode():
-        features = policy.features(frames, mask, demos, proprio=observed_proprio(observations)[None]) if detector.requires_policy else None
+        features = (
+            policy.features(frames, mask, demos, proprio=observed_proprio(observations)[None])
+            if detector.requires_policy
+            else None
+        )
         offline = detector.score({"frames": frames, "mask": mask}, demos, features)[0].numpy()
     np.testing.assert_allclose(monitor.scores, offline, atol=1e-5)
     assert all(latency >= 0 for latency in latencies)
 
 
 def test_alarm_stops_the_episode(env, policy, demos):
-    monitor = AEDMonitor(env, policy, tiny_detector("probe", policy), demos, threshold=-np.inf, on_alarm="stop")
+    monitor = AEDMonitor(
+        env, policy, tiny_detector("probe", policy), demos, threshold=-np.inf, on_alarm="stop"
+    )
     _, info = monitor.reset(seed=3)
     assert info["aed_alarm"]
     _, _, _, truncated, info = monitor.step(None)
@@ -85,7 +112,9 @@ def test_alarm_stops_the_episode(env, policy, demos):
 
 
 def test_alarm_hands_over_to_the_correction_once(env, policy, demos):
-    monitor = AEDMonitor(env, policy, tiny_detector("probe", policy), demos, threshold=-np.inf, on_alarm="correct")
+    monitor = AEDMonitor(
+        env, policy, tiny_detector("probe", policy), demos, threshold=-np.inf, on_alarm="correct"
+    )
     monitor.reset(seed=3)
     _, _, _, truncated, info = monitor.step(None)
     assert info["aed_corrected"] and info["aed_corrections"] == 1 and not truncated
@@ -97,4 +126,6 @@ def test_alarm_hands_over_to_the_correction_once(env, policy, demos):
 
 def test_bad_on_alarm_is_named(env, policy, demos):
     with pytest.raises(ValueError, match="on_alarm='explode'"):
-        AEDMonitor(env, policy, tiny_detector("probe", policy), demos, threshold=0.5, on_alarm="explode")
+        AEDMonitor(
+            env, policy, tiny_detector("probe", policy), demos, threshold=0.5, on_alarm="explode"
+        )

@@ -29,12 +29,34 @@ TASK = "PressButton"
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory) -> tuple[DemoConfig, Path]:
     runs = tmp_path_factory.mktemp("runs")
-    cfg = DemoConfig.from_preset(task=TASK, policies=("naive_dc",), detectors=("probe", "lstm_ed"), runs=runs, train_envs=1,
-                     calibration_envs=1, novel_envs=1, num_demos=1, num_successes=2, num_failures=2, labelled=1,
-                     rollouts=2, calibration_rollouts=2, policy_epochs=1, detector_epochs=1, horizon=30, alphas=(0.5,),
-                     workers=1)  # fmt: skip
+    cfg = DemoConfig.from_preset(
+        task=TASK,
+        policies=("naive_dc",),
+        detectors=("probe", "lstm_ed"),
+        runs=runs,
+        train_envs=1,
+        calibration_envs=1,
+        novel_envs=1,
+        num_demos=1,
+        num_successes=2,
+        num_failures=2,
+        labelled=1,
+        rollouts=2,
+        calibration_rollouts=2,
+        policy_epochs=1,
+        detector_epochs=1,
+        horizon=30,
+        alphas=(0.5,),
+        workers=1,
+    )
     report, times = run_demo(cfg)
-    assert set(times) >= {"collect base split", "train policies", "train detectors", "evaluate", "report"}
+    assert set(times) >= {
+        "collect base split",
+        "train policies",
+        "train detectors",
+        "evaluate",
+        "report",
+    }
     return cfg, report
 
 
@@ -45,7 +67,10 @@ def test_every_stage_leaves_what_the_next_reads(pipeline):
     results = json.loads((layout.evaluation(TASK, "naive_dc") / "results.json").read_text())
     assert results["rollouts"]["count"] == 2 and results["rollouts"]["horizon"] == 30
     assert results["endings"] == ["horizon", "success"] and not results["diagnostic"]
-    assert set(results["detectors"]) == {"probe", "lstm_ed"} and set(results["references"]) == {"time_only", "random"}
+    assert set(results["detectors"]) == {"probe", "lstm_ed"} and set(results["references"]) == {
+        "time_only",
+        "random",
+    }
     for row in results["detectors"].values():
         rates = row["horizon"]["calibrated"]["expert@0.5"]
         assert 0.0 <= rates["tpr"] <= 1.0 and len(row["horizon"]["auroc_interval"]) == 2
@@ -53,8 +78,14 @@ def test_every_stage_leaves_what_the_next_reads(pipeline):
         assert sum(row["labelled"]["delays"]["expert@0.5"]["counts"].values()) == 1
     folder = layout.detector(TASK, "probe", "naive_dc").parent
     expert = json.loads((folder / "calibration-expert.json").read_text())
-    assert expert["envs"] == [1] and expert["num_rollouts"] == 2 and np.isfinite(expert["thresholds"]["0.5"])
-    policy = json.loads((folder / "calibration.json").read_text())  # an untrained policy never succeeds
+    assert (
+        expert["envs"] == [1]
+        and expert["num_rollouts"] == 2
+        and np.isfinite(expert["thresholds"]["0.5"])
+    )
+    policy = json.loads(
+        (folder / "calibration.json").read_text()
+    )  # an untrained policy never succeeds
     assert policy["envs"] == [1] and (policy["num_rollouts"], policy["of_rollouts"]) == (0, 2)
     assert policy["thresholds"] == {"0.5": None}
     scores = json.loads((layout.evaluation(TASK, "naive_dc") / "scores.json").read_text())
@@ -72,7 +103,9 @@ def test_detectors_of_another_policy_or_task_are_refused(pipeline):
     with pytest.raises(ValueError, match="not on the evaluated checkpoint"):
         load_checked_detector(probe, "probe", TASK, policy_sha256="0" * 64)
     with pytest.raises(ValueError, match="trained for task 'PressButton', not 'PickPlace'"):
-        load_checked_detector(layout.detector(TASK, "lstm_ed", "naive_dc"), "lstm_ed", "PickPlace", "")
+        load_checked_detector(
+            layout.detector(TASK, "lstm_ed", "naive_dc"), "lstm_ed", "PickPlace", ""
+        )
 
 
 @pytest.mark.slow
@@ -85,13 +118,16 @@ def test_a_rerun_reuses_finished_stages(pipeline):
     assert checkpoint.stat().st_mtime_ns == before  # not retrained
 
 
-@pytest.mark.parametrize(("args", "named"), [
-    (["evaluate", "--task", "Juggle"], "task='Juggle'"),
-    (["evaluate", "--task", TASK, "--policy", "juggle"], "unknown policy 'juggle'"),
-    (["evaluate", "--task", TASK, "--detectors", "juggle"], "detectors=['juggle']"),
-    (["rollout", "--task", TASK, "--policy", "juggle"], "unknown policy 'juggle'"),
-    (["report", "--results", "/nonexistent/results.json"], "/nonexistent/results.json"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [
+        (["evaluate", "--task", "Juggle"], "task='Juggle'"),
+        (["evaluate", "--task", TASK, "--policy", "juggle"], "unknown policy 'juggle'"),
+        (["evaluate", "--task", TASK, "--detectors", "juggle"], "detectors=['juggle']"),
+        (["rollout", "--task", TASK, "--policy", "juggle"], "unknown policy 'juggle'"),
+        (["report", "--results", "/nonexistent/results.json"], "/nonexistent/results.json"),
+    ],
+)
 def test_bad_input_is_one_line_and_status_2(args, named):
     result = subprocess.run([AED, *args], capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and named in result.stderr, result.stderr
@@ -104,17 +140,37 @@ def test_missing_rollouts_and_mismatched_checkpoints_are_named(pipeline, tmp_pat
     runs = tmp_path / "runs"
     shutil.copytree(cfg.runs, runs)
     shutil.rmtree(RunLayout(runs).rollouts(TASK, "naive_dc"))
-    result = subprocess.run([AED, "evaluate", "--task", TASK, "--policy", "naive_dc", "--detectors", "probe",
-                             "--runs", str(runs)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    result = subprocess.run(
+        [
+            AED,
+            "evaluate",
+            "--task",
+            TASK,
+            "--policy",
+            "naive_dc",
+            "--detectors",
+            "probe",
+            "--runs",
+            str(runs),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 2 and "no such collection folder" in result.stderr, result.stderr
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("detector", "change", "named"), [
-    ("probe", {"policy_sha256": "0" * 64}, "not on the evaluated checkpoint"),
-    ("lstm_ed", {"task": "PickPlace"}, "trained for task 'PickPlace', not 'PressButton'"),
-])  # fmt: skip
-def test_a_detector_of_another_policy_or_task_is_one_line_and_status_2(pipeline, tmp_path, detector, change, named):
+@pytest.mark.parametrize(
+    ("detector", "change", "named"),
+    [
+        ("probe", {"policy_sha256": "0" * 64}, "not on the evaluated checkpoint"),
+        ("lstm_ed", {"task": "PickPlace"}, "trained for task 'PickPlace', not 'PressButton'"),
+    ],
+)
+def test_a_detector_of_another_policy_or_task_is_one_line_and_status_2(
+    pipeline, tmp_path, detector, change, named
+):
     from aed_models.checkpoint import load_checkpoint, save_checkpoint
     from aed_models.detectors import FAMILY
 
@@ -123,10 +179,31 @@ def test_a_detector_of_another_policy_or_task_is_one_line_and_status_2(pipeline,
     shutil.copytree(cfg.runs, runs)
     path = RunLayout(runs).detector(TASK, detector, "naive_dc")
     ckpt = load_checkpoint(path, family=FAMILY, name=detector)
-    save_checkpoint(path, family=FAMILY, name=detector, config=ckpt.config, state_dict=ckpt.state_dict,
-                    extra={**ckpt.extra, **change})  # fmt: skip
-    result = subprocess.run([AED, "evaluate", "--task", TASK, "--policy", "naive_dc", "--detectors", detector,
-                             "--runs", str(runs)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    save_checkpoint(
+        path,
+        family=FAMILY,
+        name=detector,
+        config=ckpt.config,
+        state_dict=ckpt.state_dict,
+        extra={**ckpt.extra, **change},
+    )
+    result = subprocess.run(
+        [
+            AED,
+            "evaluate",
+            "--task",
+            TASK,
+            "--policy",
+            "naive_dc",
+            "--detectors",
+            detector,
+            "--runs",
+            str(runs),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 2 and named in result.stderr, result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
 
@@ -136,14 +213,26 @@ def test_heldout_auroc_script_scores_every_detector_of_a_runs_layout(pipeline, t
     cfg, _ = pipeline
     script = load_script("heldout_auroc")
     out = tmp_path / "auroc.json"
-    config = {"task": TASK, "runs": cfg.runs, "envs": (0,), "policies": ("naive_dc",), "detectors": ("probe", "lstm_ed"),
-              "num_demos": 1, "out": out}  # fmt: skip
+    config = {
+        "task": TASK,
+        "runs": cfg.runs,
+        "envs": (0,),
+        "policies": ("naive_dc",),
+        "detectors": ("probe", "lstm_ed"),
+        "num_demos": 1,
+        "out": out,
+    }
     with pytest.raises(ValueError, match=r"policy naive_dc trained on base environments \[0\]"):
-        script.main(script.Config(**config))  # only environment 0 has failures, and the models trained there
+        script.main(
+            script.Config(**config)
+        )  # only environment 0 has failures, and the models trained there
     results = script.main(script.Config(**config, allow_trained_envs=True))
     assert results["trained_env_overlap"]["policy naive_dc"] == [0]
     assert results["failures"] == 2 and json.loads(out.read_text()) == results
     for kind in ("auroc", "time_matched"):
-        assert 0.0 <= results[kind]["time_only"] <= 1.0 and set(results[kind]["naive_dc"]) == {"probe", "lstm_ed"}
+        assert 0.0 <= results[kind]["time_only"] <= 1.0 and set(results[kind]["naive_dc"]) == {
+            "probe",
+            "lstm_ed",
+        }
     arrays = np.load(out.with_suffix(".npz"))
     assert len(arrays["naive_dc/probe"]) == len(arrays["labels"]) == arrays["lengths"].sum()

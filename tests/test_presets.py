@@ -24,7 +24,8 @@ TASK = "PressButton"
 
 
 def demo_training_configs(profile: str, monkeypatch) -> tuple[list, list]:
-    """The policy and detector training configs `aed demo --profile <profile>` builds (nothing runs)."""
+    """The policy and detector training configs `aed demo --profile <profile>` builds (nothing
+    runs)."""
     import aed_models.train.detector
     import aed_models.train.policy
 
@@ -47,22 +48,31 @@ def test_the_demo_trains_the_named_preset(profile, monkeypatch):
     policies, detectors = demo_training_configs(profile, monkeypatch)
     assert [c.policy for c in policies] == list(PROTOCOLS[profile].policies)
     for cfg in policies:
-        command = parsed("train-policy", "--task", TASK, "--policy", cfg.policy, "--profile", profile)
+        command = parsed(
+            "train-policy", "--task", TASK, "--policy", cfg.policy, "--profile", profile
+        )
         assert cfg.recipe() == command.recipe() == POLICIES.recipe(cfg.policy, profile, TASK)
         assert cfg.num_envs == command.num_envs == DemoConfig.from_preset(TASK, profile).train_envs
-    assert sorted({c.detector for c in detectors}) == sorted(DemoConfig.from_preset(TASK, profile).detectors)
+    assert sorted({c.detector for c in detectors}) == sorted(
+        DemoConfig.from_preset(TASK, profile).detectors
+    )
     for cfg in detectors:
         args = ("--task", TASK, "--detector", cfg.detector, "--profile", profile)
         command = parsed("train-detector", *args, *(("--policy", cfg.policy) if cfg.policy else ()))
         assert cfg.recipe() == command.recipe() == DETECTORS.recipe(cfg.detector, profile, TASK)
-        assert cfg.policy == command.policy and cfg.out == Path("runs/demo") / command.out.relative_to("runs")
+        assert cfg.policy == command.policy and cfg.out == Path(
+            "runs/demo"
+        ) / command.out.relative_to("runs")
 
 
 @pytest.mark.parametrize("profile", PROFILES)
 def test_library_and_command_line_resolve_the_same_recipe(profile):
     for name in POLICIES:
         library = TrainPolicyConfig.from_preset(TASK, name, profile)
-        assert library.recipe() == parsed("train-policy", "--policy", name, "--profile", profile).recipe()
+        assert (
+            library.recipe()
+            == parsed("train-policy", "--policy", name, "--profile", profile).recipe()
+        )
         assert isinstance(library.recipe(), PolicyRecipe)
     for name in DETECTORS:
         policy = "dct" if requires_policy(name) else None
@@ -73,33 +83,66 @@ def test_library_and_command_line_resolve_the_same_recipe(profile):
 
 
 def test_flags_override_the_preset_and_the_preset_follows_its_choosers():
-    cfg = parsed("train-policy", "--profile", "paper", "--task", "CloseDrawer", "--epochs", "3", "--lr", "0.01")
+    cfg = parsed(
+        "train-policy",
+        "--profile",
+        "paper",
+        "--task",
+        "CloseDrawer",
+        "--epochs",
+        "3",
+        "--lr",
+        "0.01",
+    )
     assert (cfg.epochs, cfg.lr, cfg.weight_decay, cfg.shift) == (3, 0.01, 1e-2, 0)
     assert cfg.num_envs == train.training_envs("CloseDrawer", "paper")
     rollout = parsed("rollout", "--task", "PickPlace", "--policy", "dct", "--split", "base")
     assert rollout.out == Path("runs/PickPlace/rollouts/dct/base") and rollout.horizon == 250
     collect = parsed("collect", "--task", "PickPlace", "--split", "novel", "--profile", "paper")
-    assert (collect.num_demos, collect.num_successes, collect.num_failures, collect.num_envs) == (5, 0, 0, 42)
+    assert (collect.num_demos, collect.num_successes, collect.num_failures, collect.num_envs) == (
+        5,
+        0,
+        0,
+        42,
+    )
     demo = parsed("demo", "--profile", "demo", "--rollouts", "2")
     assert dataclasses.replace(DemoConfig.from_preset(), rollouts=2) == demo
 
 
-@pytest.mark.parametrize("command", ["train-policy", "train-detector", "collect", "rollout", "demo"])
+@pytest.mark.parametrize(
+    "command", ["train-policy", "train-detector", "collect", "rollout", "demo"]
+)
 def test_help_shows_the_presets_numbers(command):
-    text = subprocess.run([AED, command, "--help"], capture_output=True, text=True, timeout=120, check=True).stdout
+    text = subprocess.run(
+        [AED, command, "--help"], capture_output=True, text=True, timeout=120, check=True
+    ).stdout
     flat = " ".join(text.replace("│", " ").split())
-    assert flat.count("(default: None)") == flat.count("--ray-address"), flat  # only the Ray address may be unset
-    sized = {"train-policy": ("--epochs INT", "(default: 100)", "(default: 5 8)"),
-             "train-detector": ("--epochs INT", "(default: 5 10 10)",),
-             "collect": ("--num-demos INT", "(default: 5)", "(default: 10)"),
-             "rollout": ("--num-episodes INT", "(default: 5)", "(default: 200)"),
-             "demo": ("--rollouts INT", "(default: 4)")}[command]  # fmt: skip
+    assert flat.count("(default: None)") == flat.count("--ray-address"), (
+        flat
+    )  # only the Ray address may be unset
+    sized = {
+        "train-policy": ("--epochs INT", "(default: 100)", "(default: 5 8)"),
+        "train-detector": (
+            "--epochs INT",
+            "(default: 5 10 10)",
+        ),
+        "collect": ("--num-demos INT", "(default: 5)", "(default: 10)"),
+        "rollout": ("--num-episodes INT", "(default: 5)", "(default: 200)"),
+        "demo": ("--rollouts INT", "(default: 4)"),
+    }[command]
     for piece in sized:
         assert piece in flat, (piece, flat)
 
 
 def test_bad_profile_or_model_is_one_line_and_exit_2():
-    for args in (["train-policy", "--profile", "huge"], ["train-detector", "--detector", "nope"],
-                 ["rollout", "--policy", "bc"], ["collect", "--task", "Juggle"]):  # fmt: skip
+    for args in (
+        ["train-policy", "--profile", "huge"],
+        ["train-detector", "--detector", "nope"],
+        ["rollout", "--policy", "bc"],
+        ["collect", "--task", "Juggle"],
+    ):
         result = subprocess.run([AED, *args], capture_output=True, text=True, timeout=120)
-        assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, (args, result.stderr)
+        assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, (
+            args,
+            result.stderr,
+        )

@@ -68,7 +68,9 @@ class FakeRunner(EpisodeRunner):
 
 @pytest.fixture(autouse=True)
 def env_info(monkeypatch):
-    monkeypatch.setattr(trajectory, "env_info", lambda env: {"env_id": "AED-PickPlace-base", "env_kwargs": {}})
+    monkeypatch.setattr(
+        trajectory, "env_info", lambda env: {"env_id": "AED-PickPlace-base", "env_kwargs": {}}
+    )
     FakeRunner.made = []
 
 
@@ -84,7 +86,12 @@ def test_records_then_resumes_only_what_is_missing(tmp_path):
 
 def test_a_shard_named_twice_is_refused_before_anything_is_written(tmp_path):
     with pytest.raises(ValueError, match="more than once"):
-        produce(FakeConfig(tmp_path / "new"), [FakeShard(0, 0, 1), FakeShard(0, 0, 1)], FakeRunner, "fake")
+        produce(
+            FakeConfig(tmp_path / "new"),
+            [FakeShard(0, 0, 1), FakeShard(0, 0, 1)],
+            FakeRunner,
+            "fake",
+        )
     assert not (tmp_path / "new").exists() and FakeRunner.made == []
 
 

@@ -58,7 +58,9 @@ class ScriptedPolicy:
 
 def expert_actions(split: str, env_index: int, k: int, seed: int = 0) -> np.ndarray:
     env = gym.make(aed_tasks.env_id(TASK, split), obs_mode="state")
-    episode = solve(env, seed=episode_seed(seed, TASK, split, env_index, ROLE, k, 0), env_index=env_index)
+    episode = solve(
+        env, seed=episode_seed(seed, TASK, split, env_index, ROLE, k, 0), env_index=env_index
+    )
     env.close()
     assert episode.succeeded
     return episode.actions
@@ -75,7 +77,13 @@ def roll_out(cfg: RolloutConfig, plans: list[np.ndarray | None]) -> None:
 
 def save_trained(path: Path, model, train_envs: list[int], **extra) -> None:
     """A tiny checkpoint that records, as training writes it, where it trained."""
-    provenance = {"train_config": {}, "train_split": "base", "train_envs": train_envs, "task": TASK, **extra}
+    provenance = {
+        "train_config": {},
+        "train_split": "base",
+        "train_envs": train_envs,
+        "task": TASK,
+        **extra,
+    }
     (save_policy if hasattr(model, "act") else save_detector)(path, model, extra=provenance)
 
 
@@ -86,21 +94,51 @@ def setting(tmp_path_factory) -> dict:
     runs = tmp_path_factory.mktemp("runs")
     layout = RunLayout(runs)
     torch.manual_seed(0)
-    policy = make_policy("naive_dc", POLICIES.preset("naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)))
+    policy = make_policy(
+        "naive_dc",
+        POLICIES.preset(
+            "naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)
+        ),
+    )
     layout.policy(TASK, "naive_dc").parent.mkdir(parents=True)
     save_trained(layout.policy(TASK, "naive_dc"), policy.eval(), [0])
     detector = layout.detector(TASK, "lstm_ed", "naive_dc")
     detector.parent.mkdir(parents=True)
-    save_trained(detector, make_detector("lstm_ed", arch="small_cnn", feature_dim=16, width=4, hidden_dim=16).eval(), [0])
+    save_trained(
+        detector,
+        make_detector("lstm_ed", arch="small_cnn", feature_dim=16, width=4, hidden_dim=16).eval(),
+        [0],
+    )
     for split, envs in (("novel", (0,)), ("base", (0, 1))):
-        run_collection(CollectConfig.from_preset(task=TASK, split=split, envs=envs, num_demos=1, num_successes=0, num_failures=0,
-                                     out=layout.data(TASK, split), progress=False))  # fmt: skip
+        run_collection(
+            CollectConfig.from_preset(
+                task=TASK,
+                split=split,
+                envs=envs,
+                num_demos=1,
+                num_successes=0,
+                num_failures=0,
+                out=layout.data(TASK, split),
+                progress=False,
+            )
+        )
     return {"runs": runs, "layout": layout}
 
 
-def rollout_config(setting: dict, split: str, envs: tuple[int, ...], out: Path, **kwargs) -> RolloutConfig:
-    return RolloutConfig.from_preset(task=TASK, policy="naive_dc", runs=setting["runs"], split=split, envs=envs, out=out,
-                         num_demos=1, progress=False, **kwargs)  # fmt: skip
+def rollout_config(
+    setting: dict, split: str, envs: tuple[int, ...], out: Path, **kwargs
+) -> RolloutConfig:
+    return RolloutConfig.from_preset(
+        task=TASK,
+        policy="naive_dc",
+        runs=setting["runs"],
+        split=split,
+        envs=envs,
+        out=out,
+        num_demos=1,
+        progress=False,
+        **kwargs,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -110,7 +148,19 @@ def endings(setting) -> dict[str, list[dict]]:
     stored = {}
     for ending in ("horizon", "success"):
         out = setting["runs"] / f"endings-{ending}"
-        roll_out(rollout_config(setting, "novel", (0,), out, num_episodes=2, shard_size=2, horizon=HORIZON, ending=ending), plans)
+        roll_out(
+            rollout_config(
+                setting,
+                "novel",
+                (0,),
+                out,
+                num_episodes=2,
+                shard_size=2,
+                horizon=HORIZON,
+                ending=ending,
+            ),
+            plans,
+        )
         stored[ending] = stored_rollouts(out, "naive_dc").entries
     return stored
 
@@ -131,13 +181,24 @@ def test_rollout_length_carries_no_outcome_by_default(endings):
 def test_the_papers_ending_stops_at_success_and_is_a_view_of_the_default(endings):
     success, failure = endings["success"]
     assert success["success"] and not failure["success"]
-    assert success["elapsed_steps"] == success["success_step"] + 1 < failure["elapsed_steps"] == HORIZON
-    assert paper_ending(endings["horizon"][0]) == (success["elapsed_steps"], True)  # the view equals the option
+    assert (
+        success["elapsed_steps"]
+        == success["success_step"] + 1
+        < failure["elapsed_steps"]
+        == HORIZON
+    )
+    assert paper_ending(endings["horizon"][0]) == (
+        success["elapsed_steps"],
+        True,
+    )  # the view equals the option
     assert paper_ending(endings["horizon"][1]) == (HORIZON, False)
     view = ending_views(endings["horizon"], "horizon")["success"]
     assert view.frames == [e["elapsed_steps"] + 1 for e in endings["success"]]
     time_only = metrics.rollout_maxima(metrics.time_only_scores(view.frames, HORIZON))
-    assert metrics.rollout_curves(time_only, view.failed, metrics.thresholds("probability")).auroc == 1.0  # length leaks
+    assert (
+        metrics.rollout_curves(time_only, view.failed, metrics.thresholds("probability")).auroc
+        == 1.0
+    )  # length leaks
 
 
 def test_references_sit_at_chance_on_equal_length_rollouts():
@@ -152,34 +213,77 @@ def test_references_sit_at_chance_on_equal_length_rollouts():
 
 @pytest.fixture(scope="module")
 def base_rollouts(setting) -> Path:
-    """Base environment 0 (the models trained there) and held-out 1: a success and a failure each."""
+    """Base environment 0 (the models trained there) and held-out 1: a success and a failure
+    each."""
     out = setting["layout"].rollouts(TASK, "naive_dc", "base")
     for env in (0, 1):
-        roll_out(rollout_config(setting, "base", (env,), out, num_episodes=2, shard_size=2, horizon=HORIZON),
-                 [expert_actions("base", env, 0), None])  # fmt: skip
+        roll_out(
+            rollout_config(
+                setting, "base", (env,), out, num_episodes=2, shard_size=2, horizon=HORIZON
+            ),
+            [expert_actions("base", env, 0), None],
+        )
     return out
 
 
 @pytest.mark.slow
 def test_calibration_uses_the_policys_successes_in_held_out_environments(setting, base_rollouts):
-    (body,) = calibrate_detectors(CalibrateConfig(task=TASK, policy="naive_dc", detectors=("lstm_ed",), alphas=(0.5, 0.1),
-                                                  num_demos=1, runs=setting["runs"], progress=False)).values()  # fmt: skip
-    assert body["envs"] == [1] and body["num_rollouts"] == 1 and body["of_rollouts"] == 2 and body["source"] == "policy"
-    assert np.isfinite(body["thresholds"]["0.5"]) and body["thresholds"]["0.1"] is None  # 1 success cannot promise 10%
+    (body,) = calibrate_detectors(
+        CalibrateConfig(
+            task=TASK,
+            policy="naive_dc",
+            detectors=("lstm_ed",),
+            alphas=(0.5, 0.1),
+            num_demos=1,
+            runs=setting["runs"],
+            progress=False,
+        )
+    ).values()
+    assert (
+        body["envs"] == [1]
+        and body["num_rollouts"] == 1
+        and body["of_rollouts"] == 2
+        and body["source"] == "policy"
+    )
+    assert (
+        np.isfinite(body["thresholds"]["0.5"]) and body["thresholds"]["0.1"] is None
+    )  # 1 success cannot promise 10%
     assert not body["diagnostic"]
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("command", ["evaluate", "calibrate"])
 def test_scoring_a_model_on_its_training_environments_is_refused(setting, base_rollouts, command):
-    args = [AED, command, "--task", TASK, "--policy", "naive_dc", "--detectors", "lstm_ed", "--num-demos", "1",
-            "--runs", str(setting["runs"]), "--no-progress"]  # fmt: skip
-    args += ["--split", "base", "--out", str(setting["runs"] / "eval-base")] if command == "evaluate" else ["--envs", "0", "1"]
+    args = [
+        AED,
+        command,
+        "--task",
+        TASK,
+        "--policy",
+        "naive_dc",
+        "--detectors",
+        "lstm_ed",
+        "--num-demos",
+        "1",
+        "--runs",
+        str(setting["runs"]),
+        "--no-progress",
+    ]
+    args += (
+        ["--split", "base", "--out", str(setting["runs"] / "eval-base")]
+        if command == "evaluate"
+        else ["--envs", "0", "1"]
+    )
     refused = subprocess.run(args, capture_output=True, text=True, timeout=300)
     assert refused.returncode == 2, refused.stderr
     (line,) = refused.stderr.strip().splitlines()
-    assert "policy naive_dc trained on base environments [0]" in line and "--allow-trained-envs" in line
-    allowed = subprocess.run([*args, "--allow-trained-envs"], capture_output=True, text=True, timeout=300)
+    assert (
+        "policy naive_dc trained on base environments [0]" in line
+        and "--allow-trained-envs" in line
+    )
+    allowed = subprocess.run(
+        [*args, "--allow-trained-envs"], capture_output=True, text=True, timeout=300
+    )
     assert allowed.returncode == 0, allowed.stderr
     assert "DIAGNOSTIC" in allowed.stdout
     if command == "evaluate":
@@ -189,9 +293,14 @@ def test_scoring_a_model_on_its_training_environments_is_refused(setting, base_r
 
 @pytest.mark.parametrize("task", sorted(aed_tasks.TASKS))
 def test_every_horizon_follows_the_measured_expert_lengths(task):
-    """Twice the longest measured clean expert episode, at most the time limit (results/expert_lengths)."""
+    """Twice the longest measured clean expert episode, at most the time limit
+    (results/expert_lengths)."""
     cls = aed_tasks.get_task(task)
-    measured = json.loads((Path(__file__).resolve().parents[1] / "results" / "expert_lengths" / f"{task}.json").read_text())
+    measured = json.loads(
+        (
+            Path(__file__).resolve().parents[1] / "results" / "expert_lengths" / f"{task}.json"
+        ).read_text()
+    )
     longest = measured["results"][0]["max_length"]
     assert cls.eval_horizon == min(cls.max_episode_steps, -(-2 * longest // 10) * 10)
     assert longest < cls.eval_horizon <= cls.max_episode_steps

@@ -28,19 +28,42 @@ TASK = "PressButton"
 def setting(tmp_path_factory) -> dict:
     """A tiny untrained NaiveDC checkpoint and one novel demonstration of environment 0."""
     root = tmp_path_factory.mktemp("rollout")
-    config = POLICIES.preset("naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4))
+    config = POLICIES.preset(
+        "naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)
+    )
     checkpoint = root / "policy.pt"
     save_policy(checkpoint, make_policy("naive_dc", config).eval())
     demos = root / "demos"
-    run_collection(CollectConfig.from_preset(task=TASK, split="novel", envs=(0,), num_demos=1, num_successes=0,
-                                 num_failures=0, out=demos, progress=False))  # fmt: skip
+    run_collection(
+        CollectConfig.from_preset(
+            task=TASK,
+            split="novel",
+            envs=(0,),
+            num_demos=1,
+            num_successes=0,
+            num_failures=0,
+            out=demos,
+            progress=False,
+        )
+    )
     return {"checkpoint": checkpoint, "demos": demos, "root": root}
 
 
 def config(setting: dict, out: Path, **kwargs) -> RolloutConfig:
-    return RolloutConfig.from_preset(task=TASK, policy="naive_dc", checkpoint=setting["checkpoint"], demos=setting["demos"],
-                         out=out, envs=(0,), num_episodes=3, num_demos=1, shard_size=1, horizon=12,
-                         progress=False, **kwargs)  # fmt: skip
+    return RolloutConfig.from_preset(
+        task=TASK,
+        policy="naive_dc",
+        checkpoint=setting["checkpoint"],
+        demos=setting["demos"],
+        out=out,
+        envs=(0,),
+        num_episodes=3,
+        num_demos=1,
+        shard_size=1,
+        horizon=12,
+        progress=False,
+        **kwargs,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -69,14 +92,40 @@ def test_rollouts_are_stored_with_their_policy(uninterrupted, setting):
 @pytest.mark.slow
 def test_killed_rollout_resumes_to_the_same_rollouts(uninterrupted, setting, tmp_path):
     out = tmp_path / "interrupted"
-    args = [AED, "rollout", "--task", TASK, "--policy", "naive_dc", "--checkpoint", str(setting["checkpoint"]),
-            "--demos", str(setting["demos"]), "--out", str(out), "--envs", "0", "--num-episodes", "3",
-            "--num-demos", "1", "--shard-size", "1", "--horizon", "12", "--no-progress"]  # fmt: skip
-    process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    args = [
+        AED,
+        "rollout",
+        "--task",
+        TASK,
+        "--policy",
+        "naive_dc",
+        "--checkpoint",
+        str(setting["checkpoint"]),
+        "--demos",
+        str(setting["demos"]),
+        "--out",
+        str(out),
+        "--envs",
+        "0",
+        "--num-episodes",
+        "3",
+        "--num-demos",
+        "1",
+        "--shard-size",
+        "1",
+        "--horizon",
+        "12",
+        "--no-progress",
+    ]
+    process = subprocess.Popen(
+        args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True
+    )
     try:
         deadline = time.monotonic() + 240
         while not list(out.glob(f"{ROLE}_*.json")):
-            assert process.poll() is None, f"aed rollout ended before it could be killed: {process.stderr.read()}"
+            assert process.poll() is None, (
+                f"aed rollout ended before it could be killed: {process.stderr.read()}"
+            )
             assert time.monotonic() < deadline, "aed rollout committed nothing in time"
             time.sleep(0.05)
     finally:
@@ -100,12 +149,35 @@ def test_bad_input_is_named(setting, tmp_path):
     with pytest.raises(ValueError, match="unknown policy 'juggle'"):
         RolloutConfig.from_preset(task=TASK, policy="juggle", checkpoint=setting["checkpoint"])
     with pytest.raises(FileNotFoundError, match="no policy checkpoint"):
-        run_rollouts(RolloutConfig.from_preset(task=TASK, policy="dct", checkpoint=tmp_path / "missing.pt"))
+        run_rollouts(
+            RolloutConfig.from_preset(task=TASK, policy="dct", checkpoint=tmp_path / "missing.pt")
+        )
     with pytest.raises(trajectory.CollectionError, match="no such collection folder"):
-        run_rollouts(RolloutConfig.from_preset(task=TASK, policy="naive_dc", checkpoint=setting["checkpoint"],
-                                   demos=tmp_path / "nothing", out=tmp_path / "out", progress=False))
-    result = subprocess.run([AED, "rollout", "--task", TASK, "--policy", "naive_dc", "--checkpoint",
-                             str(tmp_path / "missing.pt")], capture_output=True, text=True, timeout=120)  # fmt: skip
+        run_rollouts(
+            RolloutConfig.from_preset(
+                task=TASK,
+                policy="naive_dc",
+                checkpoint=setting["checkpoint"],
+                demos=tmp_path / "nothing",
+                out=tmp_path / "out",
+                progress=False,
+            )
+        )
+    result = subprocess.run(
+        [
+            AED,
+            "rollout",
+            "--task",
+            TASK,
+            "--policy",
+            "naive_dc",
+            "--checkpoint",
+            str(tmp_path / "missing.pt"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 2 and "missing.pt" in result.stderr
 
 
@@ -126,5 +198,12 @@ def test_bench_workers_script_runs(setting, tmp_path):
     from tests.helpers import load_script
 
     bench = load_script("bench_workers")
-    result = bench.main(bench.Config(demos=setting["demos"], envs=(0,), horizon=3, repeats=1, out=tmp_path / "bench.json"))
-    assert len(result["seconds"]["share"]) == len(result["seconds"]["defaults"]) == 1 and result["speedup"] > 0
+    result = bench.main(
+        bench.Config(
+            demos=setting["demos"], envs=(0,), horizon=3, repeats=1, out=tmp_path / "bench.json"
+        )
+    )
+    assert (
+        len(result["seconds"]["share"]) == len(result["seconds"]["defaults"]) == 1
+        and result["speedup"] > 0
+    )

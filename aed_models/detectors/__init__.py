@@ -45,8 +45,10 @@ PAPER_PARAMETERS: dict[str, float] = {
 # Why a count differs from the paper's (printed by `aed models`).
 PAPER_NOTES: dict[str, str] = {
     "dct_ed": "0.1% under: the paper does not give DCT's norm and positional-encoding sizes",
-    "probe": "sized by the policy's f_h and f_zeta (256; NaiveDC's f_zeta is 512, first + last frame): "
-    "LSTM 0.53M + gate 0.07M + task transform f_zeta x 256 + fusion 0.03M; the paper gives no inner widths",
+    "probe": "sized by the policy's f_h and f_zeta (256; NaiveDC's f_zeta is 512, first + last "
+    "frame): "
+    "LSTM 0.53M + gate 0.07M + task transform f_zeta x 256 + fusion 0.03M; the paper gives no "
+    "inner widths",
 }
 
 
@@ -56,12 +58,16 @@ def requires_policy(name: str) -> bool:
 
 
 def make_detector(name: str, config: Any = None, **overrides: Any) -> ErrorDetector:
-    """A freshly initialised detector; `config` defaults to the mini preset, `overrides` replace fields."""
+    """A freshly initialised detector; `config` defaults to the mini preset, `overrides` replace
+    fields."""
     return DETECTORS.make(name, config, **overrides)
 
 
-def save_detector(path: Path | str, detector: ErrorDetector, extra: dict[str, Any] | None = None) -> str:
-    """Write a detector checkpoint (family `detector`, its name, config, weights); returns sha256."""
+def save_detector(
+    path: Path | str, detector: ErrorDetector, extra: dict[str, Any] | None = None
+) -> str:
+    """Write a detector checkpoint (family `detector`, its name, config, weights); returns
+    sha256."""
     return DETECTORS.save(path, detector, extra)
 
 
@@ -71,5 +77,12 @@ def load_detector(path: Path | str, name: str | None = None) -> ErrorDetector:
     return DETECTORS.load(path, name)
 
 
-__all__ = ["DETECTORS", "PAPER_NOTES", "PAPER_PARAMETERS", "load_detector", "make_detector", "requires_policy",
-           "save_detector"]  # fmt: skip
+__all__ = [
+    "DETECTORS",
+    "PAPER_NOTES",
+    "PAPER_PARAMETERS",
+    "load_detector",
+    "make_detector",
+    "requires_policy",
+    "save_detector",
+]

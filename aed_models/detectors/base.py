@@ -22,6 +22,7 @@ from torch import nn
 
 Batch = dict[str, Any]
 
+
 def to_device(value: Any, device: torch.device) -> Any:
     """Tensors inside nested dicts / tuples / lists moved to `device`; anything else as is."""
     if isinstance(value, torch.Tensor):
@@ -33,17 +34,25 @@ def to_device(value: Any, device: torch.device) -> Any:
     return value
 
 
-def split_features(policy_features: Any, what: str = "policy_features") -> tuple[torch.Tensor, torch.Tensor]:
-    """(history, task) from a `PolicyFeatures`, a (history, task) pair, or a dict with those keys."""
+def split_features(
+    policy_features: Any, what: str = "policy_features"
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(history, task) from a `PolicyFeatures`, a (history, task) pair, or a dict with those
+    keys."""
     if policy_features is None:
-        raise ValueError(f"{what} is None: this detector reads the policy's features (history, task)")
+        raise ValueError(
+            f"{what} is None: this detector reads the policy's features (history, task)"
+        )
     if hasattr(policy_features, "history") and hasattr(policy_features, "task"):
         return policy_features.history, policy_features.task
     if isinstance(policy_features, dict) and {"history", "task"} <= policy_features.keys():
         return policy_features["history"], policy_features["task"]
     if isinstance(policy_features, (tuple, list)) and len(policy_features) == 2:
         return policy_features[0], policy_features[1]
-    raise TypeError(f"{what} of type {type(policy_features).__name__}: expected PolicyFeatures, (history, task) or a dict")
+    raise TypeError(
+        f"{what} of type {type(policy_features).__name__}: expected PolicyFeatures, "
+        "(history, task) or a dict"
+    )
 
 
 class ErrorDetector(nn.Module):
@@ -60,7 +69,9 @@ class ErrorDetector(nn.Module):
         self.config = config
 
     # -- training ---------------------------------------------------------------------------
-    def loss(self, batch: Batch, policy_features: Any = None) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(
+        self, batch: Batch, policy_features: Any = None
+    ) -> tuple[torch.Tensor, dict[str, float]]:
         """Training loss on one iteration's batch (`aed_models.data.EnvironmentIterations`).
 
         `policy_features` (policy-dependent detectors): the rollouts' (history, task) features,
@@ -69,7 +80,9 @@ class ErrorDetector(nn.Module):
         raise NotImplementedError
 
     # -- inference --------------------------------------------------------------------------
-    def score(self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None) -> torch.Tensor:
+    def score(
+        self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None
+    ) -> torch.Tensor:
         """(B, T) per-frame scores of padded rollouts (`frames`, `mask`); 0 on padding."""
         raise NotImplementedError
 
@@ -77,7 +90,11 @@ class ErrorDetector(nn.Module):
         """Start a new rollout given this environment's demonstrations (`frames`, `mask`)."""
         raise NotImplementedError
 
-    def step(self, frame: torch.Tensor | None = None, policy_features: tuple[torch.Tensor, torch.Tensor] | None = None) -> float:
+    def step(
+        self,
+        frame: torch.Tensor | None = None,
+        policy_features: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> float:
         """Score of the newest frame (4, H, W), or of the policy's newest (f_h, f_zeta)."""
         raise NotImplementedError
 
@@ -113,16 +130,24 @@ def steps_of(sequences: Batch, mask: torch.Tensor) -> torch.Tensor:
     """(B, L) step of each frame in its episode: `source` where the batch keeps it (frames
     subsampled or augmented in training), else the frame's position."""
     source = sequences.get("source")
-    return source if source is not None else torch.arange(mask.shape[1], device=mask.device).expand_as(mask)
+    return (
+        source
+        if source is not None
+        else torch.arange(mask.shape[1], device=mask.device).expand_as(mask)
+    )
 
 
 def demo_mask(demos: Batch | None, name: str) -> tuple[torch.Tensor, torch.Tensor]:
     """(frames (N, L, 4, H, W), mask (N, L)) of a demos dict, checked."""
     if demos is None or "frames" not in demos:
-        raise ValueError(f"{name} needs demonstrations: a dict with frames (N, L, 4, H, W) and mask (N, L)")
+        raise ValueError(
+            f"{name} needs demonstrations: a dict with frames (N, L, 4, H, W) and mask (N, L)"
+        )
     frames = demos["frames"]
     if frames.dim() != 5:
-        raise ValueError(f"demos['frames'] of shape {tuple(frames.shape)}: expected (N, L, 4, H, W)")
+        raise ValueError(
+            f"demos['frames'] of shape {tuple(frames.shape)}: expected (N, L, 4, H, W)"
+        )
     mask = demos.get("mask")
     if mask is None:
         mask = torch.ones(frames.shape[:2], dtype=torch.bool, device=frames.device)

@@ -33,11 +33,21 @@ class DetectorConfig:
         4 epochs drawing what the demo collects (3 + 4 + 3)."""
         opt = optimiser(profile)
         if profile == "paper":
-            return DetectorRecipe(epochs=paper_epochs(task), lr=opt.lr, weight_decay=opt.weight_decay, max_frames=0,
-                                  composition=COMPOSITIONS["detector"].drawn())  # fmt: skip
+            return DetectorRecipe(
+                epochs=paper_epochs(task),
+                lr=opt.lr,
+                weight_decay=opt.weight_decay,
+                max_frames=0,
+                composition=COMPOSITIONS["detector"].drawn(),
+            )
         demo = profile == "demo"
-        return DetectorRecipe(epochs=4 if demo else cls.mini_epochs, lr=opt.lr, weight_decay=opt.weight_decay,
-                              max_frames=cls.mini_max_frames, composition=(3, 4, 3) if demo else cls.mini_composition)  # fmt: skip
+        return DetectorRecipe(
+            epochs=4 if demo else cls.mini_epochs,
+            lr=opt.lr,
+            weight_decay=opt.weight_decay,
+            max_frames=cls.mini_max_frames,
+            composition=(3, 4, 3) if demo else cls.mini_composition,
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict for checkpoints and logs."""
@@ -70,7 +80,9 @@ class VisualDetectorConfig(DetectorConfig):
     def visual_head_config(self) -> Any:
         from aed_models.nn.config import VisualHeadConfig
 
-        return VisualHeadConfig(arch=self.arch, out_dim=self.feature_dim, dropout=self.dropout, width=self.width)
+        return VisualHeadConfig(
+            arch=self.arch, out_dim=self.feature_dim, dropout=self.dropout, width=self.width
+        )
 
 
 def positive(name: str, value: int | float) -> None:

@@ -28,7 +28,10 @@ class KVCache:
         n = k.shape[2]
         if self.keys is None or self.length + n > self.keys.shape[2]:
             capacity = max(64, 2 * (self.length + n))  # doubling: amortised O(1) per token
-            keys, values = k.new_empty(*k.shape[:2], capacity, k.shape[3]), v.new_empty(*v.shape[:2], capacity, v.shape[3])
+            keys, values = (
+                k.new_empty(*k.shape[:2], capacity, k.shape[3]),
+                v.new_empty(*v.shape[:2], capacity, v.shape[3]),
+            )
             if self.keys is not None:
                 keys[:, :, : self.length] = self.keys[:, :, : self.length]
                 values[:, :, : self.length] = self.values[:, :, : self.length]
@@ -57,19 +60,32 @@ class MultiHeadAttention(nn.Module):
     def project_kv(self, source: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.split(self.k(source)), self.split(self.v(source))
 
-    def attend(self, query: torch.Tensor, k: torch.Tensor, v: torch.Tensor, allowed: torch.Tensor | None = None) -> torch.Tensor:
-        """query (B, Tq, dim) over projected k, v; `allowed` (bool, broadcast to (B, heads, Tq, Tk))."""
+    def attend(
+        self,
+        query: torch.Tensor,
+        k: torch.Tensor,
+        v: torch.Tensor,
+        allowed: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """query (B, Tq, dim) over projected k, v; `allowed`
+        (bool, broadcast to (B, heads, Tq, Tk))."""
         q = self.split(self.q(query))
-        out = F.scaled_dot_product_attention(q, k, v, attn_mask=allowed, dropout_p=self.dropout if self.training else 0.0)
+        out = F.scaled_dot_product_attention(
+            q, k, v, attn_mask=allowed, dropout_p=self.dropout if self.training else 0.0
+        )
         return self.out(out.transpose(1, 2).flatten(2))
 
-    def forward(self, query: torch.Tensor, source: torch.Tensor, allowed: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self, query: torch.Tensor, source: torch.Tensor, allowed: torch.Tensor | None = None
+    ) -> torch.Tensor:
         return self.attend(query, *self.project_kv(source), allowed)
 
 
 class FeedForward(nn.Sequential):
     def __init__(self, dim: int, hidden: int, dropout: float):
-        super().__init__(nn.Linear(dim, hidden), nn.ReLU(), nn.Dropout(dropout), nn.Linear(hidden, dim))
+        super().__init__(
+            nn.Linear(dim, hidden), nn.ReLU(), nn.Dropout(dropout), nn.Linear(hidden, dim)
+        )
 
 
 class EncoderLayer(nn.Module):
@@ -128,7 +144,12 @@ def progress_encoding(progress: torch.Tensor, dim: int) -> torch.Tensor:
     aligns their stages (the rollout is coded by nothing but causal order).
     """
     half = dim // 2
-    freqs = torch.exp(torch.arange(half, device=progress.device, dtype=progress.dtype) * (-math.log(1000.0) / max(half, 1)))
-    angles = progress[..., None] * (100.0 * math.pi) * freqs  # from 50 cycles per episode down to 0.05
+    freqs = torch.exp(
+        torch.arange(half, device=progress.device, dtype=progress.dtype)
+        * (-math.log(1000.0) / max(half, 1))
+    )
+    angles = (
+        progress[..., None] * (100.0 * math.pi) * freqs
+    )  # from 50 cycles per episode down to 0.05
     code = torch.cat([torch.sin(angles), torch.cos(angles)], dim=-1)
     return F.pad(code, (0, dim - 2 * half))

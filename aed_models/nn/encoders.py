@@ -19,7 +19,8 @@ IN_CHANNELS = 4  # RGB + depth (see aed_models.data)
 
 
 class BasicBlock(nn.Module):
-    """ResNet's two 3x3 convs with a residual connection (a 1x1 projection when the shape changes)."""
+    """ResNet's two 3x3 convs with a residual connection (a 1x1 projection when the shape
+    changes)."""
 
     def __init__(self, in_channels: int, channels: int, stride: int = 1):
         super().__init__()
@@ -90,7 +91,11 @@ class SmallCNN(nn.Module):
         widths = (width, width, 2 * width, 2 * width)
         layers, channels = [], in_channels
         for w in widths:
-            layers += [nn.Conv2d(channels, w, 3, 2, 1), nn.GroupNorm(min(8, w), w), nn.ReLU(inplace=True)]
+            layers += [
+                nn.Conv2d(channels, w, 3, 2, 1),
+                nn.GroupNorm(min(8, w), w),
+                nn.ReLU(inplace=True),
+            ]
             channels = w
         self.convs = nn.Sequential(*layers)
         self.keypoints = SpatialSoftmax()
@@ -114,7 +119,9 @@ class VisualHead(nn.Module):
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         if frames.dim() != 4 or frames.shape[1] != IN_CHANNELS:
-            raise ValueError(f"frames of shape {tuple(frames.shape)}: expected (N, {IN_CHANNELS}, H, W)")
+            raise ValueError(
+                f"frames of shape {tuple(frames.shape)}: expected (N, {IN_CHANNELS}, H, W)"
+            )
         if min(frames.shape[-2:]) < 32:
             raise ValueError(f"frames of shape {tuple(frames.shape)}: H and W must be >= 32")
         return self.dropout(torch.relu(self.fc(self.backbone(frames))))
@@ -125,7 +132,9 @@ def build_visual_head(cfg: VisualHeadConfig) -> VisualHead:
     return VisualHead(cfg)
 
 
-def encode_frames(head: nn.Module, frames: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+def encode_frames(
+    head: nn.Module, frames: torch.Tensor, mask: torch.Tensor | None = None
+) -> torch.Tensor:
     """(B, L, 4, H, W) -> (B, L, D); padded frames (mask False) are not encoded and get zeros.
 
     Skipping padding saves work and keeps it out of BatchNorm's batch statistics.

@@ -14,8 +14,11 @@ from torch import nn
 LSTMState = tuple[torch.Tensor, torch.Tensor]
 
 
-def lstm_step(lstm: nn.LSTM, x: torch.Tensor, state: LSTMState | None = None) -> tuple[torch.Tensor, LSTMState]:
-    """x (B, D_in) -> (top layer's h (B, H), (h, c) each (num_layers, B, H)), as `lstm` on one step."""
+def lstm_step(
+    lstm: nn.LSTM, x: torch.Tensor, state: LSTMState | None = None
+) -> tuple[torch.Tensor, LSTMState]:
+    """x (B, D_in) -> (top layer's h (B, H), (h, c) each (num_layers, B, H)), as `lstm` on one
+    step."""
     if lstm.bidirectional or lstm.proj_size:
         raise ValueError("lstm_step: unidirectional LSTMs without projection only")
     if x.dim() != 2 or x.shape[1] != lstm.input_size:
@@ -25,7 +28,10 @@ def lstm_step(lstm: nn.LSTM, x: torch.Tensor, state: LSTMState | None = None) ->
         state = (zeros, zeros)
     hs, cs = [], []
     for layer in range(lstm.num_layers):
-        gates = x @ getattr(lstm, f"weight_ih_l{layer}").T + state[0][layer] @ getattr(lstm, f"weight_hh_l{layer}").T
+        gates = (
+            x @ getattr(lstm, f"weight_ih_l{layer}").T
+            + state[0][layer] @ getattr(lstm, f"weight_hh_l{layer}").T
+        )
         if lstm.bias:
             gates = gates + getattr(lstm, f"bias_ih_l{layer}") + getattr(lstm, f"bias_hh_l{layer}")
         i, f, g, o = gates.chunk(4, dim=-1)  # PyTorch's gate order

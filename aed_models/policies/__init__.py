@@ -35,7 +35,8 @@ FAMILY = POLICIES.family
 
 
 def make_policy(name: str, config: PolicyConfig | dict | None = None, **overrides: Any) -> DCPolicy:
-    """A freshly initialised policy; `config` defaults to the mini preset, `overrides` replace fields."""
+    """A freshly initialised policy; `config` defaults to the mini preset, `overrides` replace
+    fields."""
     return POLICIES.make(name, config, **overrides)
 
 
@@ -49,5 +50,14 @@ def save_policy(path: Path | str, policy: DCPolicy, extra: dict | None = None) -
     return POLICIES.save(path, policy, extra)
 
 
-__all__ = ["FAMILY", "POLICIES", "DCTConfig", "NaiveDCConfig", "PolicyConfig", "SCANConfig", "load_policy",
-           "make_policy", "save_policy"]  # fmt: skip
+__all__ = [
+    "FAMILY",
+    "POLICIES",
+    "DCTConfig",
+    "NaiveDCConfig",
+    "PolicyConfig",
+    "SCANConfig",
+    "load_policy",
+    "make_policy",
+    "save_policy",
+]

@@ -67,19 +67,25 @@ def check_sequences(batch: Any, what: str) -> tuple[torch.Tensor, torch.Tensor]:
         raise ValueError(f"{what}: expected a dict with 'frames' (B, L, 4, H, W) and 'mask' (B, L)")
     frames = batch["frames"]
     if frames.dim() != 5 or frames.shape[2] != 4:
-        raise ValueError(f"{what}['frames'] of shape {tuple(frames.shape)}: expected (B, L, 4, H, W)")
+        raise ValueError(
+            f"{what}['frames'] of shape {tuple(frames.shape)}: expected (B, L, 4, H, W)"
+        )
     mask = batch.get("mask")
     if mask is None:
         mask = torch.ones(frames.shape[:2], dtype=torch.bool, device=frames.device)
     if mask.shape != frames.shape[:2]:
-        raise ValueError(f"{what}['mask'] of shape {tuple(mask.shape)}: expected {tuple(frames.shape[:2])}")
+        raise ValueError(
+            f"{what}['mask'] of shape {tuple(mask.shape)}: expected {tuple(frames.shape[:2])}"
+        )
     mask = mask.bool()
     if not mask[:, 0].all():
         raise ValueError(f"{what}: every sequence needs at least one frame (mask[:, 0] all True)")
     return frames, mask
 
 
-def thin_sequences(frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None, limit: int):
+def thin_sequences(
+    frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None, limit: int
+):
     """At most `limit` frames of each padded sequence, evenly spread, its first and last kept."""
     lengths = mask.sum(1)
     if limit == 0 or int(lengths.max()) <= limit:
@@ -102,7 +108,10 @@ def check_proprio(batch: dict, what: str, needed: bool) -> torch.Tensor | None:
     shape = (*batch["frames"].shape[:2], PROPRIO_DIM)
     if proprio is None or tuple(proprio.shape) != shape:
         got = "none" if proprio is None else tuple(proprio.shape)
-        raise ValueError(f"{what}['proprio']: this policy reads proprioception (config.proprio); expected {shape}, got {got}")
+        raise ValueError(
+            f"{what}['proprio']: this policy reads proprioception (config.proprio); "
+            f"expected {shape}, got {got}"
+        )
     return proprio.float()
 
 
@@ -122,38 +131,60 @@ class DCPolicy(nn.Module):
         self.config = config
         self.history_dim, self.task_dim = history_dim, task_dim
         self.visual = build_visual_head(config.visual)
-        self.proprio_embed = nn.Linear(PROPRIO_DIM, config.visual.out_dim) if config.proprio else None
-        self.subgoal_head = nn.Linear(history_dim + task_dim, 3) if config.subgoal_weight > 0 else None
-        self.actor = Actor(history_dim + task_dim + (3 if self.subgoal_head is not None else 0), config.actor_hidden)
+        self.proprio_embed = (
+            nn.Linear(PROPRIO_DIM, config.visual.out_dim) if config.proprio else None
+        )
+        self.subgoal_head = (
+            nn.Linear(history_dim + task_dim, 3) if config.subgoal_weight > 0 else None
+        )
+        self.actor = Actor(
+            history_dim + task_dim + (3 if self.subgoal_head is not None else 0),
+            config.actor_hidden,
+        )
         self.inverse_dynamics = None
         if config.inverse_dynamics:
             d = config.visual.out_dim
-            self.inverse_dynamics = nn.Sequential(mlp([2 * d, *config.actor_hidden]), nn.Linear(config.actor_hidden[-1], ACTION_DIM))
+            self.inverse_dynamics = nn.Sequential(
+                mlp([2 * d, *config.actor_hidden]), nn.Linear(config.actor_hidden[-1], ACTION_DIM)
+            )
         self.register_buffer("action_mean", torch.zeros(ACTION_DIM))
         self.register_buffer("action_std", torch.ones(ACTION_DIM))
         self._online: dict[str, Any] | None = None
 
-    def embed(self, frames: torch.Tensor, mask: torch.Tensor | None = None, proprio: torch.Tensor | None = None) -> torch.Tensor:
+    def embed(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        proprio: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """Per-frame features: frames (B, L, 4, H, W) or (B, 4, H, W) -> (B, L, out_dim) or
         (B, out_dim), the visual head's plus the embedded proprioception."""
         f = self.visual(frames) if frames.dim() == 4 else encode_frames(self.visual, frames, mask)
         if self.proprio_embed is not None:
             if proprio is None:
-                raise ValueError("this policy reads proprioception (config.proprio) but none was given")
+                raise ValueError(
+                    "this policy reads proprioception (config.proprio) but none was given"
+                )
             f = f + self.proprio_embed(proprio.to(f.dtype))
         return f
 
     # -- task-embedding hooks ------------------------------------------------------------
-    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None) -> Any:
+    def encode_demos(
+        self, frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None
+    ) -> Any:
         raise NotImplementedError
 
-    def sequence(self, f: torch.Tensor, mask: torch.Tensor, memory: Any) -> tuple[torch.Tensor, torch.Tensor]:
+    def sequence(
+        self, f: torch.Tensor, mask: torch.Tensor, memory: Any
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         raise NotImplementedError
 
     def init_state(self, memory: Any) -> Any:
         raise NotImplementedError
 
-    def step(self, f_t: torch.Tensor, memory: Any, state: Any) -> tuple[torch.Tensor, torch.Tensor, Any]:
+    def step(
+        self, f_t: torch.Tensor, memory: Any, state: Any
+    ) -> tuple[torch.Tensor, torch.Tensor, Any]:
         raise NotImplementedError
 
     # -- batched ---------------------------------------------------------------------------
@@ -173,12 +204,23 @@ class DCPolicy(nn.Module):
         return f, PolicyFeatures(history, task)
 
     def demo_inputs(self, demos: dict) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """The demonstrations' frames, mask and proprio (or None), thinned to `config.demo_frames`."""
+        """The demonstrations' frames, mask and proprio (or None), thinned to
+        `config.demo_frames`."""
         frames, mask = check_sequences(demos, "demos")
-        return thin_sequences(frames, mask, check_proprio(demos, "demos", self.config.proprio), self.config.demo_frames)
+        return thin_sequences(
+            frames,
+            mask,
+            check_proprio(demos, "demos", self.config.proprio),
+            self.config.demo_frames,
+        )
 
-    def features(self, frames: torch.Tensor | None = None, mask: torch.Tensor | None = None, demos: dict | None = None,
-                 proprio: torch.Tensor | None = None):  # fmt: skip
+    def features(
+        self,
+        frames: torch.Tensor | None = None,
+        mask: torch.Tensor | None = None,
+        demos: dict | None = None,
+        proprio: torch.Tensor | None = None,
+    ):
         """Batched: `features(frames (B, T, 4, H, W), mask (B, T), demos, proprio (B, T, 5))`
         -> PolicyFeatures (`proprio` only for a policy that reads it).
 
@@ -190,7 +232,11 @@ class DCPolicy(nn.Module):
             return self._online["history"], self._online["task"]
         if demos is None:
             raise ValueError("features(frames, mask, demos): demos missing")
-        rollouts = {"frames": frames, "mask": mask} if proprio is None else {"frames": frames, "mask": mask, "proprio": proprio}
+        rollouts = (
+            {"frames": frames, "mask": mask}
+            if proprio is None
+            else {"frames": frames, "mask": mask, "proprio": proprio}
+        )
         return self._features(rollouts, demos)[1]
 
     def forward(self, rollouts: dict, demos: dict) -> dict[str, torch.Tensor]:
@@ -203,7 +249,9 @@ class DCPolicy(nn.Module):
             out["subgoal"] = subgoal
         return out
 
-    def _actor(self, history: torch.Tensor, task: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    def _actor(
+        self, history: torch.Tensor, task: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """[f_h, f_zeta] -> (pos, gripper, subgoal offset or None). With a subgoal head, the actor
         also reads the predicted offset: moving toward a target it was told is an easy map."""
         actor_input = torch.cat([history, task], dim=-1)
@@ -227,13 +275,20 @@ class DCPolicy(nn.Module):
         acted = torch.arange(mask.shape[1], device=mask.device)[None] < (lengths - 1)[:, None]
         if not acted.any():
             raise ValueError("loss: no frame with an action (every rollout has a single frame)")
-        pos_loss, grip_loss, grip_acc = self._action_loss(out["pos"][acted], out["grip"][acted], actions[acted])
+        pos_loss, grip_loss, grip_acc = self._action_loss(
+            out["pos"][acted], out["grip"][acted], actions[acted]
+        )
         total = pos_loss + grip_loss
         parts = {"pos_mse": pos_loss.item(), "grip_loss": grip_loss.item(), "grip_acc": grip_acc}
         if self.subgoal_head is not None:
             if "subgoal" not in rollouts or "proprio" not in rollouts:
-                raise ValueError("loss: config.subgoal_weight > 0 needs rollouts['subgoal'] and ['proprio'] (stored TCP poses)")
-            offset = (rollouts["subgoal"] - rollouts["proprio"][..., :3]).to(out["pos"].device) / SUBGOAL_SCALE_M
+                raise ValueError(
+                    "loss: config.subgoal_weight > 0 needs rollouts['subgoal'] and ['proprio'] "
+                    "(stored TCP poses)"
+                )
+            offset = (rollouts["subgoal"] - rollouts["proprio"][..., :3]).to(
+                out["pos"].device
+            ) / SUBGOAL_SCALE_M
             subgoal_loss = F.mse_loss(out["subgoal"][acted], offset[acted])
             total = total + self.config.subgoal_weight * subgoal_loss
             parts["subgoal_mse"] = subgoal_loss.item()
@@ -241,14 +296,18 @@ class DCPolicy(nn.Module):
             f = out["visual"]
             pair = torch.cat([f[:, :-1], f[:, 1:]], dim=-1)[acted[:, :-1] & mask[:, 1:]]
             pred = self.inverse_dynamics(pair)
-            id_pos, id_grip, _ = self._action_loss(pred[:, :3], pred[:, 3:], actions[:, :-1][acted[:, :-1] & mask[:, 1:]])
+            id_pos, id_grip, _ = self._action_loss(
+                pred[:, :3], pred[:, 3:], actions[:, :-1][acted[:, :-1] & mask[:, 1:]]
+            )
             id_loss = id_pos + id_grip
             total = total + self.config.inverse_dynamics_weight * id_loss
             parts["inverse_dynamics"] = id_loss.item()
         parts["loss"] = total.item()
         return total, parts
 
-    def _action_loss(self, pos: torch.Tensor, grip: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, float]:
+    def _action_loss(
+        self, pos: torch.Tensor, grip: torch.Tensor, actions: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, float]:
         target = (actions - self.action_mean) / self.action_std
         pos_loss = F.mse_loss(pos, target[:, :3])
         opened = (actions[:, 3:] > 0).float()
@@ -266,7 +325,8 @@ class DCPolicy(nn.Module):
         return grip * self.action_std[3] + self.action_mean[3]
 
     def to_action(self, pos: torch.Tensor, grip: torch.Tensor) -> torch.Tensor:
-        """Standardised pos (..., 3) and gripper output (..., 1) -> env actions (..., 4) in [-1, 1]."""
+        """Standardised pos (..., 3) and gripper output (..., 1) -> env actions (..., 4)
+        in [-1, 1]."""
         pos = (pos * self.action_std[:3] + self.action_mean[:3]).clamp(-1.0, 1.0)
         gripper = torch.where(self._grip_open(grip) > 0, 1.0, -1.0)
         return torch.cat([pos, gripper], dim=-1)
@@ -277,8 +337,16 @@ class DCPolicy(nn.Module):
         self.eval()
         device = self.action_mean.device
         with torch.inference_mode():
-            memory = self.encode_demos(*(None if x is None else x.to(device) for x in self.demo_inputs(demos)))
-            self._online = {"memory": memory, "state": self.init_state(memory), "t": 0, "history": None, "task": None}
+            memory = self.encode_demos(
+                *(None if x is None else x.to(device) for x in self.demo_inputs(demos))
+            )
+            self._online = {
+                "memory": memory,
+                "state": self.init_state(memory),
+                "t": 0,
+                "history": None,
+                "task": None,
+            }
 
     def act(self, obs: Any, proprio: Any = None) -> np.ndarray:
         """One step: a ManiSkill rgbd observation dict, or a (4, H, W) frame (plus its (5,)
@@ -288,13 +356,19 @@ class DCPolicy(nn.Module):
         device = self.action_mean.device
         frame = self.observation_frame(obs).to(device)
         if self.config.proprio:
-            proprio = torch.as_tensor(self.observation_proprio(obs) if proprio is None else proprio, dtype=torch.float32)
+            proprio = torch.as_tensor(
+                self.observation_proprio(obs) if proprio is None else proprio, dtype=torch.float32
+            )
             if proprio.shape != (PROPRIO_DIM,):
-                raise ValueError(f"proprio of shape {tuple(proprio.shape)}: expected ({PROPRIO_DIM},)")
+                raise ValueError(
+                    f"proprio of shape {tuple(proprio.shape)}: expected ({PROPRIO_DIM},)"
+                )
             proprio = proprio[None].to(device)
         with torch.inference_mode():
             f_t = self.embed(frame[None], proprio=proprio)
-            history, task, self._online["state"] = self.step(f_t, self._online["memory"], self._online["state"])
+            history, task, self._online["state"] = self.step(
+                f_t, self._online["memory"], self._online["state"]
+            )
             pos, grip, _ = self._actor(history, task)
             action = self.to_action(pos, grip)[0]
         self._online.update(history=history[0], task=task[0], t=self._online["t"] + 1)
@@ -309,8 +383,13 @@ class DCPolicy(nn.Module):
             camera = obs["sensor_data"][self.camera]
             rgb, depth = camera["rgb"], camera["depth"]
         except (KeyError, TypeError) as e:
-            raise ValueError(f"observation: expected a (4, H, W) frame or an rgbd dict with sensor_data/{self.camera}/rgb, depth") from e
-        rgb, depth = (x.cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x) for x in (rgb, depth))
+            raise ValueError(
+                "observation: expected a (4, H, W) frame or an rgbd dict with "
+                f"sensor_data/{self.camera}/rgb, depth"
+            ) from e
+        rgb, depth = (
+            x.cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x) for x in (rgb, depth)
+        )
         if rgb.ndim == 3:
             rgb, depth = rgb[None], depth[None]
         return to_frames(rgb[:1], depth[:1])[0]
@@ -321,8 +400,10 @@ class DCPolicy(nn.Module):
         try:
             tcp_pose, qpos = obs["extra"]["tcp_pose"], obs["agent"]["qpos"]
         except (KeyError, TypeError, IndexError) as e:
-            raise ValueError("observation: this policy reads proprioception; expected an observation dict "
-                             "with extra/tcp_pose and agent/qpos (or pass act(frame, proprio=...))") from e  # fmt: skip
+            raise ValueError(
+                "observation: this policy reads proprioception; expected an observation dict "
+                "with extra/tcp_pose and agent/qpos (or pass act(frame, proprio=...))"
+            ) from e
         proprio = proprio_from_obs(tcp_pose, qpos)
         return proprio.reshape(-1, proprio.shape[-1])[0]
 

@@ -62,11 +62,16 @@ class PolicyConfig:
         if not self.actor_hidden or min(self.actor_hidden) < 1:
             raise ValueError(f"actor_hidden={self.actor_hidden}: needs at least one size, all >= 1")
         if self.inverse_dynamics_weight < 0:
-            raise ValueError(f"inverse_dynamics_weight={self.inverse_dynamics_weight}: must be >= 0")
+            raise ValueError(
+                f"inverse_dynamics_weight={self.inverse_dynamics_weight}: must be >= 0"
+            )
         if self.subgoal_weight < 0:
             raise ValueError(f"subgoal_weight={self.subgoal_weight}: must be >= 0")
         if self.subgoal_weight > 0 and not self.proprio:
-            raise ValueError("subgoal_weight > 0 needs proprio=True (the offset is from the TCP the policy reads)")
+            raise ValueError(
+                "subgoal_weight > 0 needs proprio=True "
+                "(the offset is from the TCP the policy reads)"
+            )
         if self.demo_frames < 0 or self.demo_frames == 1:
             raise ValueError(f"demo_frames={self.demo_frames}: 0 (all) or >= 2")
         if self.grip_loss not in ("bce", "mse"):
@@ -89,14 +94,25 @@ class PolicyConfig:
         most what the demo collects."""
         if check_profile(profile) == "paper":
             opt = optimiser(profile)
-            return PolicyRecipe(epochs=paper_epochs(task), lr=opt.lr, weight_decay=opt.weight_decay, max_frames=0,
-                                composition=COMPOSITIONS["policy"].drawn()[:2], rollout_frames="even", shift=0)  # fmt: skip
+            return PolicyRecipe(
+                epochs=paper_epochs(task),
+                lr=opt.lr,
+                weight_decay=opt.weight_decay,
+                max_frames=0,
+                composition=COMPOSITIONS["policy"].drawn()[:2],
+                rollout_frames="even",
+                shift=0,
+            )
         opt = optimiser(profile)
         return PolicyRecipe(
-            epochs=20 if profile == "demo" else 100, lr=opt.lr, weight_decay=opt.weight_decay,
-            max_frames=cls.mini_max_frames, composition=cls.demo_composition if profile == "demo" else cls.mini_composition,
-            rollout_frames=cls.mini_rollout_frames, shift=4,
-        )  # fmt: skip
+            epochs=20 if profile == "demo" else 100,
+            lr=opt.lr,
+            weight_decay=opt.weight_decay,
+            max_frames=cls.mini_max_frames,
+            composition=cls.demo_composition if profile == "demo" else cls.mini_composition,
+            rollout_frames=cls.mini_rollout_frames,
+            shift=4,
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (lists, not tuples) for checkpoints and logs."""

@@ -45,6 +45,7 @@ from aed_models.train.policy import seed_everything, select_environments, traine
 
 logger = logging.getLogger(__name__)
 
+
 @dataclass
 class TrainDetectorConfig(DetectorRecipe):
     """Training of one error detector on one task's base-split collection: the recipe's fields
@@ -86,29 +87,48 @@ class TrainDetectorConfig(DetectorRecipe):
         DETECTORS.check(self.detector)
         check_profile(self.profile)
         if requires_policy(self.detector) and not self.policy:
-            raise ValueError(f"policy=None: detector {self.detector!r} reads a policy's features; name the policy")
+            raise ValueError(
+                f"policy=None: detector {self.detector!r} reads a policy's features; "
+                "name the policy"
+            )
         if self.num_envs < 0 or self.workers < 0:
             raise ValueError(f"num_envs={self.num_envs}, workers={self.workers}: must be >= 0")
         self.data, self.out = Path(self.data), Path(self.out)
 
     @classmethod
-    def from_preset(cls, task: str = "PressButton", detector: str = "probe", profile: str = "mini",
-                    policy: str | None = None, runs: Path = Path("runs"), **overrides: Any) -> TrainDetectorConfig:  # fmt: skip
+    def from_preset(
+        cls,
+        task: str = "PressButton",
+        detector: str = "probe",
+        profile: str = "mini",
+        policy: str | None = None,
+        runs: Path = Path("runs"),
+        **overrides: Any,
+    ) -> TrainDetectorConfig:
         """The recipe of (detector, profile, task), the layout's paths under `runs`, then
-        `overrides`. `policy` is a policy name (its checkpoint in the layout) or a checkpoint path."""
+        `overrides`. `policy` is a policy name (its checkpoint in the layout) or a checkpoint
+        path."""
         layout = RunLayout(runs)
         label = None
         if policy is not None and requires_policy(detector):
             path = Path(policy)
             label = path.parent.name if path.suffix else path.name
             policy = str(path if path.suffix or path.is_dir() else layout.policy(task, policy))
-        preset = {**dataclasses.asdict(DETECTORS.recipe(detector, profile, task)), "task": task, "detector": detector,
-                  "profile": profile, "policy": policy, "data": layout.data(task, "base"),
-                  "out": layout.detector(task, detector, label or "").parent}  # fmt: skip
+        preset = {
+            **dataclasses.asdict(DETECTORS.recipe(detector, profile, task)),
+            "task": task,
+            "detector": detector,
+            "profile": profile,
+            "policy": policy,
+            "data": layout.data(task, "base"),
+            "out": layout.detector(task, detector, label or "").parent,
+        }
         return cls(**{**preset, **overrides})
 
     def recipe(self) -> DetectorRecipe:
-        return DetectorRecipe(**{f.name: getattr(self, f.name) for f in dataclasses.fields(DetectorRecipe)})
+        return DetectorRecipe(
+            **{f.name: getattr(self, f.name) for f in dataclasses.fields(DetectorRecipe)}
+        )
 
     def policy_path(self) -> Path:
         """The policy checkpoint: `policy` itself, or `policy.pt` in it when it is a folder."""
@@ -123,27 +143,39 @@ def load_frozen_policy(cfg: TrainDetectorConfig) -> tuple[Any, str, str]:
 
     path = cfg.policy_path()
     if not path.is_file():
-        raise FileNotFoundError(f"policy={cfg.policy!r}: no checkpoint at {path} (train the policy first)")
+        raise FileNotFoundError(
+            f"policy={cfg.policy!r}: no checkpoint at {path} (train the policy first)"
+        )
     policy = load_policy(path)  # checks the family: a detector file here is refused
     sha = file_sha256(path)
     policy.requires_grad_(False)
     return policy, policy.name, sha
 
 
-def build_dataset(cfg: TrainDetectorConfig, detector_name: str, episodes: list, policy: Any, policy_sha: str) -> Any:
+def build_dataset(
+    cfg: TrainDetectorConfig, detector_name: str, episodes: list, policy: Any, policy_sha: str
+) -> Any:
     """Frame iterations for the visual baselines, cached-feature iterations for the others."""
     model_type = DETECTORS.model_type(detector_name)
     demos, successes, failures = cfg.composition
     only_successes = model_type.trains_on == "successes"
-    composition = Composition(demos, successes + failures, 0) if only_successes else Composition(demos, successes, failures)
+    composition = (
+        Composition(demos, successes + failures, 0)
+        if only_successes
+        else Composition(demos, successes, failures)
+    )
     augment = RolloutAugment(enabled=cfg.augment)
     max_frames = cfg.max_frames or None
     if not model_type.requires_policy:
-        return EnvironmentIterations(episodes, composition, augment=augment, max_frames=max_frames, seed=cfg.seed)
+        return EnvironmentIterations(
+            episodes, composition, augment=augment, max_frames=max_frames, seed=cfg.seed
+        )
     cache = FeatureCache(_features_root(cfg), policy_sha)
     written = cache.build(episodes, policy, seed=cfg.seed, progress=cfg.progress)
     logger.info("policy features: %s (%d shards computed)", cache.dir, written)
-    return FeatureIterations(episodes, cache, composition, augment=augment, max_frames=max_frames, seed=cfg.seed)
+    return FeatureIterations(
+        episodes, cache, composition, augment=augment, max_frames=max_frames, seed=cfg.seed
+    )
 
 
 def _features_root(cfg: TrainDetectorConfig) -> Path:
@@ -154,10 +186,14 @@ def _features_root(cfg: TrainDetectorConfig) -> Path:
     return Path(cfg.out) / "features"
 
 
-def prepare(batch: dict[str, Any], model_type: type, device: torch.device) -> tuple[dict[str, Any], Any]:
+def prepare(
+    batch: dict[str, Any], model_type: type, device: torch.device
+) -> tuple[dict[str, Any], Any]:
     """The detector's (batch, policy_features) from a dataset item, on `device`."""
     if model_type.requires_policy:
-        return to_device({"rollouts": batch["rollouts"]}, device), to_device(batch["features"], device)
+        return to_device({"rollouts": batch["rollouts"]}, device), to_device(
+            batch["features"], device
+        )
     return to_device({"demos": batch["demos"], "rollouts": batch["rollouts"]}, device), None
 
 
@@ -183,7 +219,13 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
     # data
     episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
     dataset = build_dataset(cfg, cfg.detector, episodes, policy, policy_sha or "")
-    logger.info("%s on %s: %d environments, %d episodes", cfg.detector, cfg.data, len(dataset), len(episodes))
+    logger.info(
+        "%s on %s: %d environments, %d episodes",
+        cfg.detector,
+        cfg.data,
+        len(dataset),
+        len(episodes),
+    )
 
     # model and optimiser
     detector_cfg = detector_cfg or DETECTORS.preset(cfg.detector, cfg.profile)
@@ -192,21 +234,38 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
         overrides["task_dim"] = policy.task_dim
     detector = make_detector(cfg.detector, detector_cfg, **overrides).to(device)
     del policy  # features are cached: the policy is not needed any more
-    optimizer = torch.optim.RMSprop([p for p in detector.parameters() if p.requires_grad], lr=cfg.lr, weight_decay=cfg.weight_decay)
-    train_config = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()}
-    provenance = {"task": cfg.task, "profile": cfg.profile, "policy_name": policy_name, "policy_sha256": policy_sha,
-                  **trained_on(episodes)}  # fmt: skip
+    optimizer = torch.optim.RMSprop(
+        [p for p in detector.parameters() if p.requires_grad],
+        lr=cfg.lr,
+        weight_decay=cfg.weight_decay,
+    )
+    train_config = {
+        k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()
+    }
+    provenance = {
+        "task": cfg.task,
+        "profile": cfg.profile,
+        "policy_name": policy_name,
+        "policy_sha256": policy_sha,
+        **trained_on(episodes),
+    }
 
     # resume
     start_epoch, log = 0, []
     if cfg.resume and last_path.exists():
         ckpt = load_checkpoint(last_path, family=FAMILY, name=cfg.detector)
         if ckpt.extra.get("policy_sha256") != policy_sha:
-            raise ValueError(f"{last_path}: trained on policy {ckpt.extra.get('policy_sha256')}, not {policy_sha}; "
-                             "use another out folder or resume=False")  # fmt: skip
-        if DETECTORS.config_from_dict(cfg.detector, ckpt.config) != detector.config:  # fields added since: their defaults
-            raise ValueError(f"{last_path}: trained with another {cfg.detector} config ({ckpt.config}); "
-                             "pass --no-resume or another --out")  # fmt: skip
+            raise ValueError(
+                f"{last_path}: trained on policy {ckpt.extra.get('policy_sha256')}, "
+                f"not {policy_sha}; use another out folder or resume=False"
+            )
+        if (
+            DETECTORS.config_from_dict(cfg.detector, ckpt.config) != detector.config
+        ):  # fields added since: their defaults
+            raise ValueError(
+                f"{last_path}: trained with another {cfg.detector} config ({ckpt.config}); "
+                "pass --no-resume or another --out"
+            )
         detector.load_state_dict(ckpt.state_dict)
         optimizer.load_state_dict(ckpt.extra["optimizer"])
         torch.set_rng_state(ckpt.extra["torch_rng"])
@@ -218,11 +277,20 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
 
     for epoch in range(start_epoch, cfg.epochs):
         detector.train()
-        loader = DataLoader(dataset, sampler=EnvironmentSampler(len(dataset), 1, cfg.seed, start_epoch=epoch),
-                            batch_size=None, num_workers=cfg.workers)  # fmt: skip
+        loader = DataLoader(
+            dataset,
+            sampler=EnvironmentSampler(len(dataset), 1, cfg.seed, start_epoch=epoch),
+            batch_size=None,
+            num_workers=cfg.workers,
+        )
         sums: dict[str, float] = defaultdict(float)
         frames, start = 0, time.perf_counter()
-        bar = tqdm(loader, desc=f"{cfg.detector} epoch {epoch + 1}/{cfg.epochs}", disable=not cfg.progress, leave=False)
+        bar = tqdm(
+            loader,
+            desc=f"{cfg.detector} epoch {epoch + 1}/{cfg.epochs}",
+            disable=not cfg.progress,
+            leave=False,
+        )
         for item in bar:
             batch, features = prepare(item, model_type, device)
             loss, parts = detector.loss(batch, features)
@@ -235,18 +303,38 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
             frames += int(batch["rollouts"]["mask"].sum())
             bar.set_postfix(loss=f"{float(loss.detach()):.3f}")
         seconds = time.perf_counter() - start
-        entry = {"epoch": epoch + 1, **{k: v / len(dataset) for k, v in sums.items()},
-                 "seconds": round(seconds, 2), "frames_per_s": round(frames / seconds, 1)}  # fmt: skip
+        entry = {
+            "epoch": epoch + 1,
+            **{k: v / len(dataset) for k, v in sums.items()},
+            "seconds": round(seconds, 2),
+            "frames_per_s": round(frames / seconds, 1),
+        }
         log.append(entry)
         logger.info("epoch %d/%d: %s", epoch + 1, cfg.epochs, entry)
-        save_checkpoint(last_path, family=FAMILY, name=cfg.detector, config=detector.config.to_dict(),
-                        state_dict=detector.state_dict(),
-                        extra={**provenance, "epoch": epoch + 1, "optimizer": optimizer.state_dict(),
-                               "torch_rng": torch.get_rng_state(), "log": log, "train_config": train_config})  # fmt: skip
+        save_checkpoint(
+            last_path,
+            family=FAMILY,
+            name=cfg.detector,
+            config=detector.config.to_dict(),
+            state_dict=detector.state_dict(),
+            extra={
+                **provenance,
+                "epoch": epoch + 1,
+                "optimizer": optimizer.state_dict(),
+                "torch_rng": torch.get_rng_state(),
+                "log": log,
+                "train_config": train_config,
+            },
+        )
         log_path.write_text(json.dumps(log, indent=1))
 
-    sha = save_checkpoint(final_path, family=FAMILY, name=cfg.detector, config=detector.config.to_dict(),
-                          state_dict=detector.state_dict(),
-                          extra={**provenance, "epoch": cfg.epochs, "log": log, "train_config": train_config})  # fmt: skip
+    sha = save_checkpoint(
+        final_path,
+        family=FAMILY,
+        name=cfg.detector,
+        config=detector.config.to_dict(),
+        state_dict=detector.state_dict(),
+        extra={**provenance, "epoch": cfg.epochs, "log": log, "train_config": train_config},
+    )
     logger.info("wrote %s (sha256 %s)", final_path, sha[:12])
     return final_path

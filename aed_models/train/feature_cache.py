@@ -86,7 +86,9 @@ class FeatureCache:
         self.policy_sha256 = policy_sha256
         self.dir = Path(root) / policy_sha256[:16]
         self.max_shards_in_memory = max_shards_in_memory
-        self._shards: OrderedDict[Path, dict[str, CachedEpisode]] = OrderedDict()  # least recently used first
+        self._shards: OrderedDict[Path, dict[str, CachedEpisode]] = (
+            OrderedDict()
+        )  # least recently used first
 
     def __getstate__(self) -> dict[str, Any]:  # DataLoader workers start with an empty memory
         return {**self.__dict__, "_shards": OrderedDict()}
@@ -112,17 +114,31 @@ class FeatureCache:
         episodes = {}
         for ref in refs:
             try:
-                ep = CachedEpisode(arrays[f"{ref.traj}/history"], arrays[f"{ref.traj}/task"], arrays[f"{ref.traj}/labels"])
+                ep = CachedEpisode(
+                    arrays[f"{ref.traj}/history"],
+                    arrays[f"{ref.traj}/task"],
+                    arrays[f"{ref.traj}/labels"],
+                )
             except KeyError as e:
-                raise FeatureCacheError(f"{path}: corrupt cache file (no arrays for {ref.traj})") from e
+                raise FeatureCacheError(
+                    f"{path}: corrupt cache file (no arrays for {ref.traj})"
+                ) from e
             if not (len(ep.history) == len(ep.task) == len(ep.labels) == ref.num_frames):
-                raise FeatureCacheError(f"{path}: corrupt cache file ({ref.traj} arrays do not have {ref.num_frames} frames)")
+                raise FeatureCacheError(
+                    f"{path}: corrupt cache file ({ref.traj} arrays do not have "
+                    f"{ref.num_frames} frames)"
+                )
             episodes[ref.traj] = ep
         return episodes
 
-    def _stale(self, meta: dict[str, Any], shard: Path, refs: Sequence[trajectory.EpisodeRef]) -> str | None:
+    def _stale(
+        self, meta: dict[str, Any], shard: Path, refs: Sequence[trajectory.EpisodeRef]
+    ) -> str | None:
         if meta.get("policy_sha256") != self.policy_sha256:
-            return f"made with policy {str(meta.get('policy_sha256'))[:16]}, not {self.policy_sha256[:16]}"
+            return (
+                f"made with policy {str(meta.get('policy_sha256'))[:16]}, "
+                f"not {self.policy_sha256[:16]}"
+            )
         if meta.get("shard") != Path(shard).name or meta.get("stamp") != _shard_stamp(Path(shard)):
             return f"episode shard {Path(shard).name} changed since it was cached"
         frames = meta.get("num_frames", {})
@@ -177,25 +193,37 @@ class FeatureCache:
 
         self.dir.mkdir(parents=True, exist_ok=True)
         try:
-            for shard, refs in tqdm(todo.items(), desc="policy features", unit="shard", disable=not progress):
+            for shard, refs in tqdm(
+                todo.items(), desc="policy features", unit="shard", disable=not progress
+            ):
                 arrays: dict[str, np.ndarray] = {}
                 used_demos: dict[str, list[str]] = {}
                 for ref in refs:
                     if ref.env_index not in demo_cache:
-                        demo_cache[ref.env_index] = self._demos(demo_pools, ref.env_index, num_demos, seed, reader, device)
+                        demo_cache[ref.env_index] = self._demos(
+                            demo_pools, ref.env_index, num_demos, seed, reader, device
+                        )
                     demos, demo_names = demo_cache[ref.env_index]
                     seq = reader.read(ref)
                     mask = torch.ones(1, len(seq), dtype=torch.bool, device=device)
                     with torch.no_grad():
                         proprio = None if seq.proprio is None else seq.proprio[None].to(device)
-                        feats = policy.features(seq.frames[None].to(device), mask, demos, proprio=proprio)
+                        feats = policy.features(
+                            seq.frames[None].to(device), mask, demos, proprio=proprio
+                        )
                     arrays[f"{ref.traj}/history"] = feats.history[0].float().cpu().numpy()
                     arrays[f"{ref.traj}/task"] = feats.task[0].float().cpu().numpy()
                     arrays[f"{ref.traj}/labels"] = seq.labels.float().numpy()
                     used_demos[ref.traj] = demo_names
-                meta = {"policy_sha256": self.policy_sha256, "shard": shard.name, "stamp": _shard_stamp(shard),
-                        "num_frames": {r.traj: r.num_frames for r in refs}, "demos": used_demos,
-                        "num_demos": num_demos, "seed": seed}  # fmt: skip
+                meta = {
+                    "policy_sha256": self.policy_sha256,
+                    "shard": shard.name,
+                    "stamp": _shard_stamp(shard),
+                    "num_frames": {r.traj: r.num_frames for r in refs},
+                    "demos": used_demos,
+                    "num_demos": num_demos,
+                    "seed": seed,
+                }
                 _write_npz(self.path_for(shard), arrays, meta)
                 self._shards.pop(shard, None)
         finally:
@@ -203,11 +231,19 @@ class FeatureCache:
         return len(todo)
 
     @staticmethod
-    def _demos(pools: dict, env_index: int, num_demos: int, seed: int, reader: EpisodeReader,
-               device: torch.device) -> tuple[dict[str, torch.Tensor], list[str]]:  # fmt: skip
+    def _demos(
+        pools: dict,
+        env_index: int,
+        num_demos: int,
+        seed: int,
+        reader: EpisodeReader,
+        device: torch.device,
+    ) -> tuple[dict[str, torch.Tensor], list[str]]:
         pool = pools.get(env_index, {}).get("demo", [])
         if not pool:
-            raise FeatureCacheError(f"environment {env_index} has no optimal demonstration to condition the policy on")
+            raise FeatureCacheError(
+                f"environment {env_index} has no optimal demonstration to condition the policy on"
+            )
         refs = _draw(pool, num_demos, np.random.default_rng([seed, env_index]))
         padded = pad_sequences([reader.read(r) for r in refs])
         demos = {k: padded[k].to(device) for k in ("frames", "mask", "proprio") if k in padded}
@@ -262,15 +298,26 @@ class FeatureIterations(Dataset):
             composition = COMPOSITIONS[composition]
         if max_frames is not None and max_frames < 2:
             raise ValueError(f"max_frames={max_frames}: must be >= 2 (first and last frame)")
-        self.composition, self.cache, self.augment, self.max_frames, self.seed = composition, cache, augment, max_frames, seed
+        self.composition, self.cache, self.augment, self.max_frames, self.seed = (
+            composition,
+            cache,
+            augment,
+            max_frames,
+            seed,
+        )
         self.pools = _group(episodes, "optimal")
         self.env_indices = sorted(self.pools)
         if not self.env_indices:
             raise ValueError("no episodes: is the collection empty, or of another split?")
         for env_index, pool in self.pools.items():
-            for role, n in (("agent_success", composition.num_successes), ("agent_failure", composition.num_failures)):
+            for role, n in (
+                ("agent_success", composition.num_successes),
+                ("agent_failure", composition.num_failures),
+            ):
                 if n and not pool[role]:
-                    raise ValueError(f"environment {env_index} has no {role} episodes, the composition asks {n}")
+                    raise ValueError(
+                        f"environment {env_index} has no {role} episodes, the composition asks {n}"
+                    )
         cache.check([e for e in episodes if e.role in ROLLOUT_ROLES])
 
     def __len__(self) -> int:
@@ -281,11 +328,18 @@ class FeatureIterations(Dataset):
         env_index = self.env_indices[position]
         rng = np.random.default_rng([self.seed, epoch, position])
         pool = self.pools[env_index]
-        if pool["demo"]:  # drawn and discarded: keeps the random stream equal to EnvironmentIterations'
+        if pool[
+            "demo"
+        ]:  # drawn and discarded: keeps the random stream equal to EnvironmentIterations'
             _draw(pool["demo"], self.composition.num_demos, rng)
         seqs, failures = [], []
-        for role, n in (("agent_success", self.composition.num_successes), ("agent_failure", self.composition.num_failures)):
-            for ref in _draw(pool[role], n, rng):  # draw, then augment, in EnvironmentIterations' order
+        for role, n in (
+            ("agent_success", self.composition.num_successes),
+            ("agent_failure", self.composition.num_failures),
+        ):
+            for ref in _draw(
+                pool[role], n, rng
+            ):  # draw, then augment, in EnvironmentIterations' order
                 indices = np.arange(ref.num_frames, dtype=np.int64)
                 if self.augment is not None:
                     indices = self.augment.indices(ref.num_frames, rng)
@@ -296,8 +350,11 @@ class FeatureIterations(Dataset):
         return {"env_index": env_index, "epoch": epoch, **_pad_features(seqs, failures)}
 
 
-def _pad_features(seqs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], failures: list[bool]) -> dict[str, Any]:
-    """Padded (history, task, labels, source frame index) sequences: the rollouts dict and features."""
+def _pad_features(
+    seqs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], failures: list[bool]
+) -> dict[str, Any]:
+    """Padded (history, task, labels, source frame index) sequences: the rollouts dict and
+    features."""
     lengths = torch.tensor([len(s[0]) for s in seqs], dtype=torch.int64)
     longest = int(lengths.max())
     b = len(seqs)
@@ -307,8 +364,18 @@ def _pad_features(seqs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     source = torch.zeros(b, longest, dtype=torch.int64)
     for i, (h, z, y, s) in enumerate(seqs):
         n = len(h)
-        history[i, :n], task[i, :n], labels[i, :n] = torch.from_numpy(h), torch.from_numpy(z), torch.from_numpy(y)
+        history[i, :n], task[i, :n], labels[i, :n] = (
+            torch.from_numpy(h),
+            torch.from_numpy(z),
+            torch.from_numpy(y),
+        )
         source[i, :n] = torch.from_numpy(np.asarray(s, dtype=np.int64))
     mask = torch.arange(longest)[None] < lengths[:, None]
-    rollouts = {"mask": mask, "lengths": lengths, "labels": labels, "is_failure": torch.tensor(failures), "source": source}
+    rollouts = {
+        "mask": mask,
+        "lengths": lengths,
+        "labels": labels,
+        "is_failure": torch.tensor(failures),
+        "source": source,
+    }
     return {"rollouts": rollouts, "features": (history, task)}

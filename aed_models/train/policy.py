@@ -1,4 +1,5 @@
-"""Train a demonstration-conditioned policy by behaviour cloning (paper, appendix "Training details").
+"""Train a demonstration-conditioned policy by behaviour cloning (paper, appendix
+"Training details").
 
 Read top to bottom: config -> data -> model -> (resume) -> epochs -> final checkpoint.
 
@@ -39,6 +40,7 @@ from aed_models.policies import FAMILY, POLICIES, PolicyConfig, make_policy
 from aed_models.recipe import PolicyRecipe, Profile, check_profile
 
 logger = logging.getLogger(__name__)
+
 
 @dataclass
 class TrainPolicyConfig(PolicyRecipe):
@@ -82,16 +84,31 @@ class TrainPolicyConfig(PolicyRecipe):
         self.data, self.out = Path(self.data), Path(self.out)
 
     @classmethod
-    def from_preset(cls, task: str = "PressButton", policy: str = "naive_dc", profile: str = "mini",
-                    runs: Path = Path("runs"), **overrides: Any) -> TrainPolicyConfig:  # fmt: skip
-        """The recipe of (policy, profile, task), the layout's paths under `runs`, then `overrides`."""
+    def from_preset(
+        cls,
+        task: str = "PressButton",
+        policy: str = "naive_dc",
+        profile: str = "mini",
+        runs: Path = Path("runs"),
+        **overrides: Any,
+    ) -> TrainPolicyConfig:
+        """The recipe of (policy, profile, task), the layout's paths under `runs`, then
+        `overrides`."""
         layout = RunLayout(runs)
-        preset = {**dataclasses.asdict(POLICIES.recipe(policy, profile, task)), "task": task, "policy": policy,
-                  "profile": profile, "data": layout.data(task, "base"), "out": layout.policy(task, policy).parent}  # fmt: skip
+        preset = {
+            **dataclasses.asdict(POLICIES.recipe(policy, profile, task)),
+            "task": task,
+            "policy": policy,
+            "profile": profile,
+            "data": layout.data(task, "base"),
+            "out": layout.policy(task, policy).parent,
+        }
         return cls(**{**preset, **overrides})
 
     def recipe(self) -> PolicyRecipe:
-        return PolicyRecipe(**{f.name: getattr(self, f.name) for f in dataclasses.fields(PolicyRecipe)})
+        return PolicyRecipe(
+            **{f.name: getattr(self, f.name) for f in dataclasses.fields(PolicyRecipe)}
+        )
 
 
 def seed_everything(seed: int) -> None:
@@ -133,14 +150,20 @@ def random_shift(frames: torch.Tensor, shift: int, generator: torch.Generator) -
     if shift == 0:
         return frames
     b, length, c, h, w = frames.shape
-    padded = F.pad(frames.flatten(0, 1), (shift,) * 4, mode="replicate").view(b, length, c, h + 2 * shift, w + 2 * shift)
+    padded = F.pad(frames.flatten(0, 1), (shift,) * 4, mode="replicate").view(
+        b, length, c, h + 2 * shift, w + 2 * shift
+    )
     offsets = torch.randint(0, 2 * shift + 1, (b, 2), generator=generator).tolist()
-    return torch.stack([padded[i, :, :, dy : dy + h, dx : dx + w] for i, (dy, dx) in enumerate(offsets)])
+    return torch.stack(
+        [padded[i, :, :, dy : dy + h, dx : dx + w] for i, (dy, dx) in enumerate(offsets)]
+    )
 
 
 def prepare(batch: dict[str, Any], cfg: TrainPolicyConfig, device: torch.device) -> dict[str, Any]:
     """Augment (seeded by seed, epoch, environment) and move an iteration's tensors to `device`."""
-    seed = int(np.random.default_rng([cfg.seed, batch["epoch"], batch["env_index"]]).integers(2**62))
+    seed = int(
+        np.random.default_rng([cfg.seed, batch["epoch"], batch["env_index"]]).integers(2**62)
+    )
     generator = torch.Generator().manual_seed(seed)
     out = {}
     for key in ("demos", "rollouts"):
@@ -164,15 +187,24 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
     # data
     episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
     composition = Composition(*cfg.composition)
-    dataset = EnvironmentIterations(episodes, composition, max_frames=cfg.max_frames or None, seed=cfg.seed,
-                                    rollout_frames=cfg.rollout_frames)  # fmt: skip
-    logger.info("%s on %s: %d environments, %d episodes", cfg.policy, cfg.data, len(dataset), len(episodes))
+    dataset = EnvironmentIterations(
+        episodes,
+        composition,
+        max_frames=cfg.max_frames or None,
+        seed=cfg.seed,
+        rollout_frames=cfg.rollout_frames,
+    )
+    logger.info(
+        "%s on %s: %d environments, %d episodes", cfg.policy, cfg.data, len(dataset), len(episodes)
+    )
 
     # model and optimiser
     policy_cfg = policy_cfg or POLICIES.preset(cfg.policy, cfg.profile)
     policy = make_policy(cfg.policy, policy_cfg).to(device)
     optimizer = torch.optim.RMSprop(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    train_config = {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()}
+    train_config = {
+        k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()
+    }
     provenance = {"train_config": train_config, **trained_on(episodes)}
 
     # resume, or start from the data's action statistics
@@ -180,8 +212,10 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
     if cfg.resume and last_path.exists():
         ckpt = load_checkpoint(last_path, family=FAMILY, name=cfg.policy)
         if ckpt.config != policy.config.to_dict():
-            raise ValueError(f"{last_path}: trained with another {cfg.policy} config ({ckpt.config}); "
-                             "pass --no-resume or another --out")  # fmt: skip
+            raise ValueError(
+                f"{last_path}: trained with another {cfg.policy} config ({ckpt.config}); "
+                "pass --no-resume or another --out"
+            )
         policy.load_state_dict(ckpt.state_dict)
         optimizer.load_state_dict(ckpt.extra["optimizer"])
         torch.set_rng_state(ckpt.extra["torch_rng"])
@@ -195,11 +229,20 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
 
     for epoch in range(start_epoch, cfg.epochs):
         policy.train()
-        loader = DataLoader(dataset, sampler=EnvironmentSampler(len(dataset), 1, cfg.seed, start_epoch=epoch),
-                            batch_size=None, num_workers=cfg.workers)  # fmt: skip
+        loader = DataLoader(
+            dataset,
+            sampler=EnvironmentSampler(len(dataset), 1, cfg.seed, start_epoch=epoch),
+            batch_size=None,
+            num_workers=cfg.workers,
+        )
         sums: dict[str, float] = defaultdict(float)
         frames, start = 0, time.perf_counter()
-        bar = tqdm(loader, desc=f"{cfg.policy} epoch {epoch + 1}/{cfg.epochs}", disable=not cfg.progress, leave=False)
+        bar = tqdm(
+            loader,
+            desc=f"{cfg.policy} epoch {epoch + 1}/{cfg.epochs}",
+            disable=not cfg.progress,
+            leave=False,
+        )
         for batch in bar:
             batch = prepare(batch, cfg, device)
             loss, parts = policy.loss(batch)
@@ -211,18 +254,37 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
             frames += int(batch["rollouts"]["mask"].sum() + batch["demos"]["mask"].sum())
             bar.set_postfix(loss=f"{parts['loss']:.3f}", pos_mse=f"{parts['pos_mse']:.3f}")
         seconds = time.perf_counter() - start
-        entry = {"epoch": epoch + 1, **{k: v / len(dataset) for k, v in sums.items()},
-                 "seconds": round(seconds, 2), "frames_per_s": round(frames / seconds, 1)}  # fmt: skip
+        entry = {
+            "epoch": epoch + 1,
+            **{k: v / len(dataset) for k, v in sums.items()},
+            "seconds": round(seconds, 2),
+            "frames_per_s": round(frames / seconds, 1),
+        }
         log.append(entry)
         logger.info("epoch %d/%d: %s", epoch + 1, cfg.epochs, entry)
-        save_checkpoint(last_path, family=FAMILY, name=cfg.policy, config=policy.config.to_dict(),
-                        state_dict=policy.state_dict(),
-                        extra={"epoch": epoch + 1, "optimizer": optimizer.state_dict(), "torch_rng": torch.get_rng_state(),
-                               "log": log, **provenance})  # fmt: skip
+        save_checkpoint(
+            last_path,
+            family=FAMILY,
+            name=cfg.policy,
+            config=policy.config.to_dict(),
+            state_dict=policy.state_dict(),
+            extra={
+                "epoch": epoch + 1,
+                "optimizer": optimizer.state_dict(),
+                "torch_rng": torch.get_rng_state(),
+                "log": log,
+                **provenance,
+            },
+        )
         log_path.write_text(json.dumps(log, indent=1))
 
-    sha = save_checkpoint(final_path, family=FAMILY, name=cfg.policy, config=policy.config.to_dict(),
-                          state_dict=policy.state_dict(),
-                          extra={"epoch": cfg.epochs, "log": log, **provenance})  # fmt: skip
+    sha = save_checkpoint(
+        final_path,
+        family=FAMILY,
+        name=cfg.policy,
+        config=policy.config.to_dict(),
+        state_dict=policy.state_dict(),
+        extra={"epoch": cfg.epochs, "log": log, **provenance},
+    )
     logger.info("wrote %s (sha256 %s)", final_path, sha[:12])
     return final_path

@@ -158,10 +158,13 @@ def build_button(
     _build_cap(link, cap, render_material(housing.material), g)
     link.set_joint_name("cap_joint")
     link.set_joint_properties(
-        "prismatic", limits=[[-g.travel, 0.0]],
+        "prismatic",
+        limits=[[-g.travel, 0.0]],
         pose_in_parent=sapien.Pose(p=[0, 0, g.housing_height], q=UPRIGHT),
-        pose_in_child=sapien.Pose(q=UPRIGHT), friction=0.0, damping=0.0,
-    )  # fmt: skip
+        pose_in_child=sapien.Pose(q=UPRIGHT),
+        friction=0.0,
+        damping=0.0,
+    )
     builder.initial_pose = sapien.Pose(p=[0.0, 0.0, 0.0])
     button = builder.build(name=name, fix_root_link=True)
     set_button_spring(button, g)

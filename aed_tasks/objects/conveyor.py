@@ -70,32 +70,47 @@ def build_conveyor(
     paint = render_material(dataclasses.replace(spec.material, texture=None))
     frame = scene.create_actor_builder()
     body_h = BELT_TOP - BELT_SKIN
-    _add_box(frame, [cx, y, body_h / 2], [length / 2, width / 2 + RAIL_THICKNESS, body_h / 2], paint)
+    _add_box(
+        frame, [cx, y, body_h / 2], [length / 2, width / 2 + RAIL_THICKNESS, body_h / 2], paint
+    )
     for side in (-1, 1):  # side rails: they keep carried boxes on the belt
         rail_y = y + side * (width / 2 + RAIL_THICKNESS / 2)
         rail_z = (body_h + BELT_TOP + rail_height) / 2
-        _add_box(frame, [cx, rail_y, rail_z], [length / 2, RAIL_THICKNESS / 2, (BELT_TOP + rail_height - body_h) / 2], paint)
+        _add_box(
+            frame,
+            [cx, rail_y, rail_z],
+            [length / 2, RAIL_THICKNESS / 2, (BELT_TOP + rail_height - body_h) / 2],
+            paint,
+        )
     stop_x = x1 if direction > 0 else x0  # the downstream end: an end stop holds what arrives
     stop_paint = render_material(MaterialSpec(colour=(0.12, 0.12, 0.12, 1.0), roughness=0.6))
-    _add_box(frame, [stop_x + direction * 0.008, y, (body_h + BELT_TOP + END_STOP_HEIGHT) / 2],
-             [0.008, width / 2 + RAIL_THICKNESS, (BELT_TOP + END_STOP_HEIGHT - body_h) / 2], stop_paint)  # fmt: skip
+    _add_box(
+        frame,
+        [stop_x + direction * 0.008, y, (body_h + BELT_TOP + END_STOP_HEIGHT) / 2],
+        [0.008, width / 2 + RAIL_THICKNESS, (BELT_TOP + END_STOP_HEIGHT - body_h) / 2],
+        stop_paint,
+    )
     if spec.shape.startswith("conveyor_rollered"):
         for end in (x0, x1):
             frame.add_cylinder_visual(
-                pose=sapien.Pose(p=[end, y, BELT_TOP / 2], q=ALONG_Y), radius=BELT_TOP / 2,
-                half_length=width / 2 + RAIL_THICKNESS, material=render_material(RUBBER),
-            )  # fmt: skip
+                pose=sapien.Pose(p=[end, y, BELT_TOP / 2], q=ALONG_Y),
+                radius=BELT_TOP / 2,
+                half_length=width / 2 + RAIL_THICKNESS,
+                material=render_material(RUBBER),
+            )
         motor_x = x0 + 0.06 if direction > 0 else x1 - 0.06
         frame.add_box_visual(
             pose=sapien.Pose(p=[motor_x, y + np.sign(y) * (width / 2 + 0.035), 0.03]),
-            half_size=[0.04, 0.025, 0.03], material=paint,
-        )  # fmt: skip
+            half_size=[0.04, 0.025, 0.03],
+            material=paint,
+        )
     else:
         for end in (x0, x1):
             frame.add_box_visual(
-                pose=sapien.Pose(p=[end, y, body_h / 2]), half_size=[0.01, width / 2 + RAIL_THICKNESS + 0.004, body_h / 2 + 0.004],
+                pose=sapien.Pose(p=[end, y, body_h / 2]),
+                half_size=[0.01, width / 2 + RAIL_THICKNESS + 0.004, body_h / 2 + 0.004],
                 material=stop_paint,
-            )  # fmt: skip
+            )
     frame.initial_pose = sapien.Pose()
     frame.build_static(name=f"{name}_frame")
 
@@ -110,14 +125,26 @@ def build_conveyor(
     return ConveyorBelt(actor=actor, home=home, direction=np.array([float(direction), 0.0, 0.0]))
 
 
-def _add_box(builder, centre, half, material, collision: bool = True, density: float = 500.0, friction: float = 0.9) -> None:
+def _add_box(
+    builder,
+    centre,
+    half,
+    material,
+    collision: bool = True,
+    density: float = 500.0,
+    friction: float = 0.9,
+) -> None:
     pose = sapien.Pose(p=list(centre))
     if collision:
-        builder.add_box_collision(pose=pose, half_size=list(half), density=density, material=physical_material(friction))
+        builder.add_box_collision(
+            pose=pose, half_size=list(half), density=density, material=physical_material(friction)
+        )
     builder.add_box_visual(pose=pose, half_size=list(half), material=material)
 
 
-def build_packing_box(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: float = 450.0) -> Actor:
+def build_packing_box(
+    scene: ManiSkillScene, spec: ObjectSpec, name: str, density: float = 450.0
+) -> Actor:
     """An open-top box of `spec.size` = (length x, width y, height), origin at its bottom centre.
 
     Five boxes (floor and four walls) plus the design's extras, none of which widens the box
@@ -131,17 +158,47 @@ def build_packing_box(scene: ManiSkillScene, spec: ObjectSpec, name: str, densit
     builder = scene.create_actor_builder()
     _add_box(builder, [0, 0, t / 2], [length / 2, width / 2, t / 2], material, density=density)
     for side in (-1, 1):
-        _add_box(builder, [0, side * (width - t) / 2, height / 2], [length / 2, t / 2, height / 2], material, density=density)
-        _add_box(builder, [side * (length - t) / 2, 0, height / 2], [t / 2, width / 2 - t, height / 2], material, density=density)
+        _add_box(
+            builder,
+            [0, side * (width - t) / 2, height / 2],
+            [length / 2, t / 2, height / 2],
+            material,
+            density=density,
+        )
+        _add_box(
+            builder,
+            [side * (length - t) / 2, 0, height / 2],
+            [t / 2, width / 2 - t, height / 2],
+            material,
+            density=density,
+        )
     for side in (-1, 1):
         if spec.shape.startswith("box_flanged"):
-            _add_box(builder, [side * (length + FLANGE_REACH) / 2, 0, height - t / 2], [FLANGE_REACH / 2, width / 2, t / 2], material, density=density)
+            _add_box(
+                builder,
+                [side * (length + FLANGE_REACH) / 2, 0, height - t / 2],
+                [FLANGE_REACH / 2, width / 2, t / 2],
+                material,
+                density=density,
+            )
         elif spec.shape.startswith("box_handled"):
-            _add_box(builder, [side * (length + HANDLE_REACH) / 2, 0, height * 0.7], [HANDLE_REACH / 2, width * 0.28, 0.005], material, density=density)
+            _add_box(
+                builder,
+                [side * (length + HANDLE_REACH) / 2, 0, height * 0.7],
+                [HANDLE_REACH / 2, width * 0.28, 0.005],
+                material,
+                density=density,
+            )
         elif spec.shape.startswith("box_cornered"):
             for side_y in (-1, 1):
-                post = [side * (length / 2 - t - 0.005), side_y * (width / 2 - t - 0.005), (height + 0.01) / 2]
-                _add_box(builder, post, [0.005, 0.005, (height + 0.01) / 2], material, density=density)
+                post = [
+                    side * (length / 2 - t - 0.005),
+                    side_y * (width / 2 - t - 0.005),
+                    (height + 0.01) / 2,
+                ]
+                _add_box(
+                    builder, post, [0.005, 0.005, (height + 0.01) / 2], material, density=density
+                )
     builder.initial_pose = sapien.Pose()
     return builder.build(name=name)
 
@@ -156,7 +213,9 @@ def box_half_reach(spec: ObjectSpec) -> float:
     return length / 2
 
 
-def build_product(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: float = 500.0) -> Actor:
+def build_product(
+    scene: ManiSkillScene, spec: ObjectSpec, name: str, density: float = 500.0
+) -> Actor:
     """A small product of `spec.size` = (width, height), origin at its bottom centre.
 
     `product_carton*` is a box, `product_can*` a cylinder; any other shape is a revolved
@@ -168,12 +227,20 @@ def build_product(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: f
     builder = scene.create_actor_builder()
     if spec.shape.startswith("product_carton"):
         half = [width * 0.6, width / 2, height / 2]
-        builder.add_box_collision(pose=sapien.Pose(p=[0, 0, height / 2]), half_size=half, density=density, material=grip)
-        builder.add_box_visual(pose=sapien.Pose(p=[0, 0, height / 2]), half_size=half, material=material)
+        builder.add_box_collision(
+            pose=sapien.Pose(p=[0, 0, height / 2]), half_size=half, density=density, material=grip
+        )
+        builder.add_box_visual(
+            pose=sapien.Pose(p=[0, 0, height / 2]), half_size=half, material=material
+        )
     elif spec.shape.startswith("product_can"):
         pose = sapien.Pose(p=[0, 0, height / 2], q=UPRIGHT)
-        builder.add_cylinder_collision(pose=pose, radius=width / 2, half_length=height / 2, density=density, material=grip)
-        builder.add_cylinder_visual(pose=pose, radius=width / 2, half_length=height / 2, material=material)
+        builder.add_cylinder_collision(
+            pose=pose, radius=width / 2, half_length=height / 2, density=density, material=grip
+        )
+        builder.add_cylinder_visual(
+            pose=pose, radius=width / 2, half_length=height / 2, material=material
+        )
     else:
         path, scale = str(mesh_path(spec.shape)), [width, width, height]
         builder.add_convex_collision_from_file(path, scale=scale, density=density, material=grip)
@@ -182,11 +249,18 @@ def build_product(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: f
     return builder.build(name=name)
 
 
-def build_pillars(scene: ManiSkillScene, material: MaterialSpec, positions: list[tuple[float, float]], floor_z: float) -> None:
+def build_pillars(
+    scene: ManiSkillScene,
+    material: MaterialSpec,
+    positions: list[tuple[float, float]],
+    floor_z: float,
+) -> None:
     """Static square pillars from the floor up, the factory hall behind the robot."""
     builder = scene.create_actor_builder()
     paint = render_material(material)
     for x, y in positions:
-        builder.add_box_visual(pose=sapien.Pose(p=[x, y, floor_z + 1.25]), half_size=[0.09, 0.09, 1.25], material=paint)
+        builder.add_box_visual(
+            pose=sapien.Pose(p=[x, y, floor_z + 1.25]), half_size=[0.09, 0.09, 1.25], material=paint
+        )
     builder.initial_pose = sapien.Pose()
     builder.build_static(name="pillars")

@@ -22,12 +22,20 @@ from aed_tasks.catalogue import MaterialSpec, ObjectSpec
 from aed_tasks.scene import physical_material, render_material
 
 # Designs, disjoint by split: cabinets (shell, plinth, legs, crown) and drawers (by handle).
-CABINET_SHAPES = {"base": ("cabinet_plain", "cabinet_plinth"), "novel": ("cabinet_legged", "cabinet_crowned")}
+CABINET_SHAPES = {
+    "base": ("cabinet_plain", "cabinet_plinth"),
+    "novel": ("cabinet_legged", "cabinet_crowned"),
+}
 DRAWER_SHAPES = {
     "base": ("drawer_bar", "drawer_knob", "drawer_ledge"),
     "novel": ("drawer_twin_balls", "drawer_vertical_bar", "drawer_block"),
 }
-CABINET_LIFT = {"cabinet_plain": 0.0, "cabinet_plinth": 0.018, "cabinet_legged": 0.03, "cabinet_crowned": 0.0}
+CABINET_LIFT = {
+    "cabinet_plain": 0.0,
+    "cabinet_plinth": 0.018,
+    "cabinet_legged": 0.03,
+    "cabinet_crowned": 0.0,
+}
 
 WALL = 0.01  # cabinet wall thickness
 TRAY_WALL = 0.006
@@ -58,17 +66,30 @@ def drawer_layout(cabinet: ObjectSpec, drawer: ObjectSpec) -> DrawerLayout:
     """The geometry of a unit built from `cabinet` (width, depth, height) and `drawer`."""
     width, depth, height = cabinet.size
     lift = CABINET_LIFT[cabinet.shape]
-    front_x = -0.012 if cabinet.shape == "cabinet_crowned" else 0.0  # the crowned cabinet has a face frame
+    front_x = (
+        -0.012 if cabinet.shape == "cabinet_crowned" else 0.0
+    )  # the crowned cabinet has a face frame
     top = lift + height + (0.008 if cabinet.shape in ("cabinet_crowned", "cabinet_plinth") else 0.0)
     return DrawerLayout(
-        width=width, depth=depth,
+        width=width,
+        depth=depth,
         panel_front_x=front_x - PANEL_GAP - PANEL_THICKNESS,
-        panel_bottom_z=lift + CLEARANCE, panel_top_z=lift + height - CLEARANCE,
-        handle_reach=drawer.size[1], unit_top_z=top, travel=depth - 0.04,
-    )  # fmt: skip
+        panel_bottom_z=lift + CLEARANCE,
+        panel_top_z=lift + height - CLEARANCE,
+        handle_reach=drawer.size[1],
+        unit_top_z=top,
+        travel=depth - 0.04,
+    )
 
 
-def _box(link: LinkBuilder, centre, half, material: RenderMaterial, physical: PhysxMaterial, density: float) -> None:
+def _box(
+    link: LinkBuilder,
+    centre,
+    half,
+    material: RenderMaterial,
+    physical: PhysxMaterial,
+    density: float,
+) -> None:
     """One box, seen and solid."""
     pose = sapien.Pose(p=[float(v) for v in centre])
     half = [float(v) for v in half]
@@ -76,7 +97,9 @@ def _box(link: LinkBuilder, centre, half, material: RenderMaterial, physical: Ph
     link.add_box_visual(pose=pose, half_size=half, material=material)
 
 
-def _shade(spec: MaterialSpec, factor: float, roughness: float = 0.8, metallic: float = 0.0) -> RenderMaterial:
+def _shade(
+    spec: MaterialSpec, factor: float, roughness: float = 0.8, metallic: float = 0.0
+) -> RenderMaterial:
     """A darker (factor < 1) plain version of a material: trims, legs, handles."""
     colour = tuple(factor * c for c in spec.colour[:3]) + (1.0,)
     return render_material(MaterialSpec(colour=colour, roughness=roughness, metallic=metallic))
@@ -107,22 +130,42 @@ def _add_cabinet(link: LinkBuilder, spec: ObjectSpec, material: RenderMaterial) 
     dark = _shade(spec.material, 0.35)
     if spec.shape == "cabinet_plinth":  # recessed plinth and a thin overhanging top
         _box(link, [cx + 0.01, 0, lift / 2], [hx - 0.02, hw - 0.015, lift / 2], dark, physical, 500)
-        _box(link, [cx - 0.005, 0, z1 + 0.004], [hx + 0.005, hw + 0.006, 0.004], material, physical, 500)
+        _box(
+            link,
+            [cx - 0.005, 0, z1 + 0.004],
+            [hx + 0.005, hw + 0.006, 0.004],
+            material,
+            physical,
+            500,
+        )
     elif spec.shape == "cabinet_legged":  # four square legs
         for sx in (0.02, depth - 0.02):
             for sy in (-1, 1):
-                _box(link, [sx, sy * (hw - 0.02), lift / 2], [0.012, 0.012, lift / 2], dark, physical, 500)
+                _box(
+                    link,
+                    [sx, sy * (hw - 0.02), lift / 2],
+                    [0.012, 0.012, lift / 2],
+                    dark,
+                    physical,
+                    500,
+                )
     elif spec.shape == "cabinet_crowned":  # a face frame around the opening and a crown
         fx, fhx = _span(-0.012, 0.0)
         _box(link, [fx, 0, z0 + WALL / 2], [fhx, hw, WALL / 2], dark, physical, 500)
         _box(link, [fx, 0, z1 - WALL / 2], [fhx, hw, WALL / 2], dark, physical, 500)
         for side in (-1, 1):
             _box(link, [fx, side * (hw - WALL / 2), cz], [fhx, WALL / 2, hz], dark, physical, 500)
-        _box(link, [cx - 0.008, 0, z1 + 0.004], [hx + 0.008, hw + 0.004, 0.004], dark, physical, 500)
+        _box(
+            link, [cx - 0.008, 0, z1 + 0.004], [hx + 0.008, hw + 0.004, 0.004], dark, physical, 500
+        )
 
 
 def _add_tray(
-    link: LinkBuilder, cabinet: ObjectSpec, layout: DrawerLayout, front: RenderMaterial, inner: RenderMaterial
+    link: LinkBuilder,
+    cabinet: ObjectSpec,
+    layout: DrawerLayout,
+    front: RenderMaterial,
+    inner: RenderMaterial,
 ) -> None:
     """The drawer at joint value 0: an open tray inside the cabinet behind a front panel."""
     width, depth, height = cabinet.size
@@ -151,7 +194,9 @@ def _add_tray(
 def _add_handle(link: LinkBuilder, spec: ObjectSpec, layout: DrawerLayout) -> None:
     """The drawer design's handle on the panel's front face, below where the gripper pushes."""
     length, reach = spec.size
-    material = _shade(spec.material, 0.45, roughness=0.3, metallic=0.7)  # a metallic shade of the front
+    material = _shade(
+        spec.material, 0.45, roughness=0.3, metallic=0.7
+    )  # a metallic shade of the front
     physical = physical_material(0.6)
     x_face = layout.panel_front_x
     z = layout.panel_bottom_z + 0.4 * (layout.panel_top_z - layout.panel_bottom_z)
@@ -180,7 +225,9 @@ def _add_handle(link: LinkBuilder, spec: ObjectSpec, layout: DrawerLayout) -> No
             link.add_sphere_visual(pose=pose, radius=ball, material=material)
     elif spec.shape == "drawer_knob":  # a cylinder along x (SAPIEN's axis): out of the panel
         pose = sapien.Pose(p=[out_x, 0, z])
-        link.add_cylinder_collision(pose=pose, radius=0.011, half_length=out_hx, material=physical, density=2000)
+        link.add_cylinder_collision(
+            pose=pose, radius=0.011, half_length=out_hx, material=physical, density=2000
+        )
         link.add_cylinder_visual(pose=pose, radius=0.011, half_length=out_hx, material=material)
     else:
         raise ValueError(f"unknown drawer design {spec.shape!r}; known: {DRAWER_SHAPES}")
@@ -202,19 +249,23 @@ def build_drawer_unit(
 
     drawer = builder.create_link_builder(body)
     drawer.set_name("drawer")
-    inner_colour = tuple(0.8 * c for c in cabinet.material.colour[:3]) + (1.0,)  # the tray: a darker cabinet
+    inner_colour = tuple(0.8 * c for c in cabinet.material.colour[:3]) + (
+        1.0,
+    )  # the tray: a darker cabinet
     inner = render_material(replace(cabinet.material, colour=inner_colour))
     _add_tray(drawer, cabinet, layout, render_material(drawer_spec.material), inner)
     _add_handle(drawer, drawer_spec, layout)
     drawer.set_joint_name("slide")
     drawer.set_joint_properties(
-        type="prismatic", limits=[[0.0, layout.travel]],
-        pose_in_parent=sapien.Pose(q=ROTATE_Z_180), pose_in_child=sapien.Pose(q=ROTATE_Z_180),
-        friction=JOINT_FRICTION, damping=JOINT_DAMPING,
-    )  # fmt: skip
+        type="prismatic",
+        limits=[[0.0, layout.travel]],
+        pose_in_parent=sapien.Pose(q=ROTATE_Z_180),
+        pose_in_child=sapien.Pose(q=ROTATE_Z_180),
+        friction=JOINT_FRICTION,
+        damping=JOINT_DAMPING,
+    )
     builder.initial_pose = sapien.Pose(p=[0.0, 0.0, 0.0])
     unit = builder.build(name=name, fix_root_link=True)
     for joint in unit.get_active_joints():
         joint.set_friction(JOINT_FRICTION)  # ManiSkill's builder sets the damping, not the friction
     return unit, layout
-

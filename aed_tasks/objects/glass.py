@@ -63,9 +63,13 @@ def glass_geometry(spec: ObjectSpec) -> GlassGeometry:
     if faceted:  # the mesh's vertices sit on the outline radius: its flats are closer in
         wall[:, 0] *= np.cos(np.pi / sections)
     return GlassGeometry(
-        diameter=diameter, height=height, wall=wall, floor_z=float(outline[-1, 1]) * height,
-        segments=segments, visual_yaw=np.pi / sections if faceted else 0.0,
-    )  # fmt: skip
+        diameter=diameter,
+        height=height,
+        wall=wall,
+        floor_z=float(outline[-1, 1]) * height,
+        segments=segments,
+        visual_yaw=np.pi / sections if faceted else 0.0,
+    )
 
 
 def build_glass(scene: ManiSkillScene, spec: ObjectSpec, name: str) -> Actor:
@@ -75,19 +79,28 @@ def build_glass(scene: ManiSkillScene, spec: ObjectSpec, name: str) -> Actor:
     grip = physical_material(0.6)
     r_base = float(geometry.wall[0, 0])
     builder.add_cylinder_collision(
-        pose=sapien.Pose(p=[0, 0, geometry.floor_z / 2], q=UPRIGHT), radius=r_base,
-        half_length=geometry.floor_z / 2, density=GLASS_DENSITY, material=grip,
-    )  # fmt: skip
+        pose=sapien.Pose(p=[0, 0, geometry.floor_z / 2], q=UPRIGHT),
+        radius=r_base,
+        half_length=geometry.floor_z / 2,
+        density=GLASS_DENSITY,
+        material=grip,
+    )
     for (r0, z0), (r1, z1) in zip(geometry.wall[:-1], geometry.wall[1:], strict=True):
         z0 = max(z0, 0.002)  # the boxes' tilted corners must not stick out below the base
-        bands = frustum_wall(r0 - GLASS_WALL, r1 - GLASS_WALL, z1, z0, GLASS_WALL, geometry.segments)
+        bands = frustum_wall(
+            r0 - GLASS_WALL, r1 - GLASS_WALL, z1, z0, GLASS_WALL, geometry.segments
+        )
         for pose, half in bands:
-            builder.add_box_collision(pose=pose, half_size=half, density=GLASS_DENSITY, material=grip)
+            builder.add_box_collision(
+                pose=pose, half_size=half, density=GLASS_DENSITY, material=grip
+            )
     visual = sapien.Pose(q=[np.cos(geometry.visual_yaw / 2), 0, 0, np.sin(geometry.visual_yaw / 2)])
     builder.add_visual_from_file(
-        str(mesh_path(spec.shape)), pose=visual, scale=[geometry.diameter, geometry.diameter, geometry.height],
+        str(mesh_path(spec.shape)),
+        pose=visual,
+        scale=[geometry.diameter, geometry.diameter, geometry.height],
         material=glass_material(spec.material),
-    )  # fmt: skip
+    )
     builder.initial_pose = sapien.Pose(p=[0, 0, 0])
     return builder.build(name=name)
 
@@ -110,9 +123,11 @@ def build_water(scene: ManiSkillScene, spec: ObjectSpec, name: str) -> list[Acto
         builder = scene.create_actor_builder()
         builder.add_sphere_collision(radius=radius, density=WATER_DENSITY, material=slippery)
         builder.add_visual_from_file(
-            str(mesh_path("glass_water_drop")), pose=sapien.Pose(p=[0, 0, -radius]),
-            scale=[2 * radius, 2 * radius, 2 * radius], material=colour,
-        )  # fmt: skip
+            str(mesh_path("glass_water_drop")),
+            pose=sapien.Pose(p=[0, 0, -radius]),
+            scale=[2 * radius, 2 * radius, 2 * radius],
+            material=colour,
+        )
         builder.initial_pose = sapien.Pose(p=[0, 0, 1.0 + 0.05 * i])
         drops.append(builder.build(name=f"{name}_{i}"))
     return drops
@@ -134,7 +149,9 @@ def drop_spots(spec: ObjectSpec, rng: np.random.Generator) -> np.ndarray:
     spots: list[tuple[float, float, float]] = []
     z = geometry.floor_z + radius + gap
     while z + radius <= geometry.height:
-        room = float(geometry.inner_radius(z - radius)) - radius - gap  # widest ring that clears the wall
+        room = (
+            float(geometry.inner_radius(z - radius)) - radius - gap
+        )  # widest ring that clears the wall
         ring = int(2 * np.pi * room / (2 * radius + gap)) if room > radius else 0
         phase = rng.uniform(0, 2 * np.pi)
         for k in range(ring):
@@ -154,17 +171,31 @@ def build_coaster(scene: ManiSkillScene, spec: ObjectSpec, name: str) -> Actor:
     centre = sapien.Pose(p=[0, 0, thickness / 2])
     if spec.shape.startswith("coaster_round"):
         upright = sapien.Pose(p=[0, 0, thickness / 2], q=UPRIGHT)
-        builder.add_cylinder_collision(pose=upright, radius=diameter / 2, half_length=thickness / 2,
-                                       density=COASTER_DENSITY, material=friction)  # fmt: skip
-        builder.add_cylinder_visual(pose=upright, radius=diameter / 2, half_length=thickness / 2, material=material)
+        builder.add_cylinder_collision(
+            pose=upright,
+            radius=diameter / 2,
+            half_length=thickness / 2,
+            density=COASTER_DENSITY,
+            material=friction,
+        )
+        builder.add_cylinder_visual(
+            pose=upright, radius=diameter / 2, half_length=thickness / 2, material=material
+        )
     elif spec.shape.startswith("coaster_square"):
         half = [diameter / 2, diameter / 2, thickness / 2]
-        builder.add_box_collision(pose=centre, half_size=half, density=COASTER_DENSITY, material=friction)
+        builder.add_box_collision(
+            pose=centre, half_size=half, density=COASTER_DENSITY, material=friction
+        )
         builder.add_box_visual(pose=centre, half_size=half, material=material)
     else:  # a prism from a revolved mesh: hexagon, oval (squashed along y)
         squash = 0.78 if spec.shape.startswith("coaster_oval") else 1.0
-        path, scale = str(mesh_path(coaster_mesh(spec.shape))), [diameter, diameter * squash, thickness]
-        builder.add_convex_collision_from_file(path, scale=scale, density=COASTER_DENSITY, material=friction)
+        path, scale = (
+            str(mesh_path(coaster_mesh(spec.shape))),
+            [diameter, diameter * squash, thickness],
+        )
+        builder.add_convex_collision_from_file(
+            path, scale=scale, density=COASTER_DENSITY, material=friction
+        )
         builder.add_visual_from_file(path, scale=scale, material=material)
     builder.initial_pose = sapien.Pose(p=[0, 0, 0])
     return builder.build(name=name)

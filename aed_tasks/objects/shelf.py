@@ -57,7 +57,11 @@ SETBACK = 0.06
 def sample_shelf_size(rng: np.random.Generator) -> tuple[float, float, float]:
     """(outer width, depth, clearance) of a shelf the Panda can push an item fully under."""
     width = rng.uniform(MIN_FREE_WIDTH + 2 * SIDE + 0.01, MIN_FREE_WIDTH + 2 * SIDE + 0.04)
-    return float(width), float(rng.uniform(0.13, 0.16)), float(rng.uniform(MIN_CLEARANCE, MIN_CLEARANCE + 0.025))
+    return (
+        float(width),
+        float(rng.uniform(0.13, 0.16)),
+        float(rng.uniform(MIN_CLEARANCE, MIN_CLEARANCE + 0.025)),
+    )
 
 
 def shelf_opening(spec: ObjectSpec) -> tuple[float, float, float]:
@@ -75,7 +79,9 @@ def shelf_height(spec: ObjectSpec) -> float:
     return spec.size[2] + BOARD
 
 
-def build_shelf(scene: ManiSkillScene, spec: ObjectSpec, name: str, kinematic: bool = True) -> Actor:
+def build_shelf(
+    scene: ManiSkillScene, spec: ObjectSpec, name: str, kinematic: bool = True
+) -> Actor:
     """A low bookshelf of `spec.shape` (see `SHELF_SHAPES`); books stand on it as decoration.
 
     Kinematic by default, so that `set_pose` can move it between episodes; nothing the
@@ -87,7 +93,9 @@ def build_shelf(scene: ManiSkillScene, spec: ObjectSpec, name: str, kinematic: b
     material = render_material(spec.material)
     for pose, half, collide in _DESIGNS[spec.shape](spec):
         if collide:
-            builder.add_box_collision(pose=pose, half_size=half, density=SHELF_DENSITY, material=physical_material(0.6))
+            builder.add_box_collision(
+                pose=pose, half_size=half, density=SHELF_DENSITY, material=physical_material(0.6)
+            )
         builder.add_box_visual(pose=pose, half_size=half, material=material)
     if spec.shape == "shelf_columns":
         _add_columns(builder, spec, material)
@@ -108,7 +116,10 @@ def _top_board(spec: ObjectSpec) -> Box:
 def _side_boards(spec: ObjectSpec) -> list[Box]:
     width, depth, clearance = spec.size
     half = [(depth - SETBACK) / 2, SIDE / 2, clearance / 2]
-    return [(sapien.Pose(p=[SETBACK / 2, s * (width / 2 - SIDE / 2), clearance / 2]), half, True) for s in (-1, 1)]
+    return [
+        (sapien.Pose(p=[SETBACK / 2, s * (width / 2 - SIDE / 2), clearance / 2]), half, True)
+        for s in (-1, 1)
+    ]
 
 
 def _post_positions(spec: ObjectSpec, inset: float) -> list[tuple[float, float]]:
@@ -133,7 +144,10 @@ def _ledge(spec: ObjectSpec) -> list[Box]:
 def _posts(spec: ObjectSpec) -> list[Box]:
     """Four square posts under a top board with a back rail."""
     width, depth, clearance = spec.size
-    posts = [(sapien.Pose(p=[x, y, clearance / 2]), [SIDE / 2, SIDE / 2, clearance / 2], True) for x, y in _post_positions(spec, SIDE / 2)]
+    posts = [
+        (sapien.Pose(p=[x, y, clearance / 2]), [SIDE / 2, SIDE / 2, clearance / 2], True)
+        for x, y in _post_positions(spec, SIDE / 2)
+    ]
     rail = sapien.Pose(p=[depth / 2 - 0.006, 0, clearance + BOARD + 0.035])
     return [*posts, _top_board(spec), (rail, [0.006, width / 2, 0.035], True)]
 
@@ -145,30 +159,51 @@ def _columns(spec: ObjectSpec) -> list[Box]:
     return [_top_board(spec), (crown, [depth / 2 - 0.012, width / 2 - 0.012, 0.006], False)]
 
 
-_DESIGNS = {"shelf_slab": _slab, "shelf_ledge": _ledge, "shelf_posts": _posts, "shelf_columns": _columns}
+_DESIGNS = {
+    "shelf_slab": _slab,
+    "shelf_ledge": _ledge,
+    "shelf_posts": _posts,
+    "shelf_columns": _columns,
+}
 
 
-def _add_columns(builder: sapien.ActorBuilder, spec: ObjectSpec, material: sapien.render.RenderMaterial) -> None:
+def _add_columns(
+    builder: sapien.ActorBuilder, spec: ObjectSpec, material: sapien.render.RenderMaterial
+) -> None:
     clearance = spec.size[2]
     for x, y in _post_positions(spec, SIDE / 2):
         pose = sapien.Pose(p=[x, y, clearance / 2], q=UPRIGHT)
-        builder.add_cylinder_collision(pose=pose, radius=SIDE / 2, half_length=clearance / 2, density=SHELF_DENSITY)
-        builder.add_cylinder_visual(pose=pose, radius=SIDE / 2, half_length=clearance / 2, material=material)
+        builder.add_cylinder_collision(
+            pose=pose, radius=SIDE / 2, half_length=clearance / 2, density=SHELF_DENSITY
+        )
+        builder.add_cylinder_visual(
+            pose=pose, radius=SIDE / 2, half_length=clearance / 2, material=material
+        )
 
 
 def _add_books(builder: sapien.ActorBuilder, spec: ObjectSpec) -> None:
     """A row of books standing at the back of the top (visual only: nothing touches them)."""
     width, depth, clearance = spec.size
     base = np.asarray(spec.material.colour[:3])
-    x_back = depth / 2 - 0.045 if spec.shape in ("shelf_ledge", "shelf_posts") else depth / 2 - 0.035
+    x_back = (
+        depth / 2 - 0.045 if spec.shape in ("shelf_ledge", "shelf_posts") else depth / 2 - 0.035
+    )
     y = -width / 2 + 0.04
-    for k, (thick, tall, shade) in enumerate(((0.022, 0.07, 0.55), (0.016, 0.06, 1.35), (0.026, 0.075, 0.8), (0.018, 0.055, 0.4))):
+    for k, (thick, tall, shade) in enumerate(
+        ((0.022, 0.07, 0.55), (0.016, 0.06, 1.35), (0.026, 0.075, 0.8), (0.018, 0.055, 0.4))
+    ):
         if y + thick > width / 2 - 0.03:
             break
-        colour = tuple(float(v) for v in np.clip(base * shade + (0.15 if k % 2 else 0.0), 0, 1)) + (1.0,)
+        colour = tuple(float(v) for v in np.clip(base * shade + (0.15 if k % 2 else 0.0), 0, 1)) + (
+            1.0,
+        )
         half = [0.03, thick / 2, tall / 2]
         pose = sapien.Pose(p=[x_back, y + thick / 2, clearance + BOARD + tall / 2])
-        builder.add_box_visual(pose=pose, half_size=half, material=render_material(MaterialSpec(colour=colour, roughness=0.8)))
+        builder.add_box_visual(
+            pose=pose,
+            half_size=half,
+            material=render_material(MaterialSpec(colour=colour, roughness=0.8)),
+        )
         y += thick + 0.004
 
 
@@ -176,7 +211,9 @@ def _add_books(builder: sapien.ActorBuilder, spec: ObjectSpec) -> None:
 PAGES = MaterialSpec(colour=(0.93, 0.91, 0.84, 1.0), roughness=0.9)
 
 
-def build_item(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: float = ITEM_DENSITY) -> Actor:
+def build_item(
+    scene: ManiSkillScene, spec: ObjectSpec, name: str, density: float = ITEM_DENSITY
+) -> Actor:
     """A graspable item of `spec.size` = (length x, width y, height), origin at its bottom centre.
 
     Blocks, books and cases collide as one or two boxes, canisters as a cylinder lying along
@@ -190,11 +227,17 @@ def build_item(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: floa
     half = [length / 2, width / 2, height / 2]
     if spec.shape == "item_canister":  # lying along x: a drum with a darker lid at each end
         _add_octagonal_drum(builder, length, height / 2, density, grip)
-        builder.add_cylinder_visual(pose=centre, radius=height / 2, half_length=length / 2 - 0.003, material=material)
-        lids = render_material(MaterialSpec(colour=(0.6, 0.6, 0.62, 1.0), roughness=0.3, metallic=0.8))
+        builder.add_cylinder_visual(
+            pose=centre, radius=height / 2, half_length=length / 2 - 0.003, material=material
+        )
+        lids = render_material(
+            MaterialSpec(colour=(0.6, 0.6, 0.62, 1.0), roughness=0.3, metallic=0.8)
+        )
         for s in (-1, 1):
             lid = sapien.Pose(p=[s * (length / 2 - 0.0015), 0, height / 2])
-            builder.add_cylinder_visual(pose=lid, radius=height / 2 * 0.97, half_length=0.0015, material=lids)
+            builder.add_cylinder_visual(
+                pose=lid, radius=height / 2 * 0.97, half_length=0.0015, material=lids
+            )
     elif spec.shape == "item_loaf":  # a box under a round roof (a half drum along x)
         roof = width / 2
         body = sapien.Pose(p=[0, 0, (height - roof) / 2])
@@ -202,25 +245,41 @@ def build_item(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: floa
         builder.add_box_collision(pose=body, half_size=body_half, density=density, material=grip)
         builder.add_box_visual(pose=body, half_size=body_half, material=material)
         top = sapien.Pose(p=[0, 0, height - roof])  # SAPIEN cylinders lie along x
-        builder.add_cylinder_collision(pose=top, radius=roof, half_length=length / 2, density=density, material=grip)
-        builder.add_cylinder_visual(pose=top, radius=roof, half_length=length / 2, material=material)
+        builder.add_cylinder_collision(
+            pose=top, radius=roof, half_length=length / 2, density=density, material=grip
+        )
+        builder.add_cylinder_visual(
+            pose=top, radius=roof, half_length=length / 2, material=material
+        )
     else:
         builder.add_box_collision(pose=centre, half_size=half, density=density, material=grip)
         if spec.shape == "item_book":  # covers and spine in colour, pages showing on three sides
             cover = 0.003
             for z in (cover / 2, height - cover / 2):
-                builder.add_box_visual(pose=sapien.Pose(p=[0, 0, z]), half_size=[half[0], half[1], cover / 2], material=material)
+                builder.add_box_visual(
+                    pose=sapien.Pose(p=[0, 0, z]),
+                    half_size=[half[0], half[1], cover / 2],
+                    material=material,
+                )
             spine = sapien.Pose(p=[0, -half[1] + cover / 2, height / 2])
-            builder.add_box_visual(pose=spine, half_size=[half[0], cover / 2, half[2]], material=material)
+            builder.add_box_visual(
+                pose=spine, half_size=[half[0], cover / 2, half[2]], material=material
+            )
             pages = sapien.Pose(p=[-0.001, cover / 2 - 0.001, height / 2])
-            builder.add_box_visual(pose=pages, half_size=[half[0] - 0.001, half[1] - cover / 2, half[2] - cover], material=render_material(PAGES))
+            builder.add_box_visual(
+                pose=pages,
+                half_size=[half[0] - 0.001, half[1] - cover / 2, half[2] - cover],
+                material=render_material(PAGES),
+            )
         else:
             builder.add_box_visual(pose=centre, half_size=half, material=material)
     builder.initial_pose = sapien.Pose(p=[0, 0, 0])
     return builder.build(name=name)
 
 
-def _add_octagonal_drum(builder: sapien.ActorBuilder, length: float, radius: float, density: float, material) -> None:
+def _add_octagonal_drum(
+    builder: sapien.ActorBuilder, length: float, radius: float, density: float, material
+) -> None:
     """The canister's collision: four boxes turned 45 degrees apart about x, flat faces at `radius`.
 
     A lying PhysX cylinder rolls away on its own from any small tilt (it even gains speed):
@@ -234,15 +293,24 @@ def _add_octagonal_drum(builder: sapien.ActorBuilder, length: float, radius: flo
     for k in range(4):
         angle = k * np.pi / 4
         pose = sapien.Pose(p=[0, 0, radius], q=[np.cos(angle / 2), np.sin(angle / 2), 0, 0])
-        builder.add_box_collision(pose=pose, half_size=[length / 2, radius, half_flat], density=density, material=material)
+        builder.add_box_collision(
+            pose=pose, half_size=[length / 2, radius, half_flat], density=density, material=material
+        )
 
 
-_UNIT_CORNERS = torch.tensor([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (0, 2)], dtype=torch.float32) / 2
+_UNIT_CORNERS = (
+    torch.tensor(
+        [[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (0, 2)], dtype=torch.float32
+    )
+    / 2
+)
 
 
 def item_corners(item: Actor, spec: ObjectSpec) -> torch.Tensor:
     """World positions (n, 8, 3) of the corners of the item's bounding box."""
     length, width, height = spec.size
-    local = _UNIT_CORNERS.to(item.pose.p.device) * torch.tensor([length, width, height], device=item.pose.p.device)
+    local = _UNIT_CORNERS.to(item.pose.p.device) * torch.tensor(
+        [length, width, height], device=item.pose.p.device
+    )
     rot = item.pose.to_transformation_matrix()[:, :3, :3]
     return item.pose.p[:, None, :] + local[None] @ rot.transpose(1, 2)

@@ -12,7 +12,9 @@ from aed_tasks.catalogue import ObjectSpec
 from aed_tasks.scene import UPRIGHT, physical_material, render_material
 
 
-def build_vessel(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: float = 450.0) -> Actor:
+def build_vessel(
+    scene: ManiSkillScene, spec: ObjectSpec, name: str, density: float = 450.0
+) -> Actor:
     """A mug or cup of `spec.size` = (diameter, height); mugs get a handle along +x.
 
     The collision is the convex hull of the body (nothing goes inside a mug here), so the
@@ -33,7 +35,9 @@ def build_vessel(scene: ManiSkillScene, spec: ObjectSpec, name: str, density: fl
     return builder.build(name=name)
 
 
-def frustum_wall(r_bottom: float, r_top: float, height: float, z0: float, thickness: float, segments: int):
+def frustum_wall(
+    r_bottom: float, r_top: float, height: float, z0: float, thickness: float, segments: int
+):
     """Poses and half sizes of `segments` boxes forming a conical wall (a bowl's side)."""
     tilt = np.arctan2(r_top - r_bottom, height - z0)
     slant = np.hypot(r_top - r_bottom, height - z0)
@@ -57,11 +61,18 @@ def build_bowl(scene: ManiSkillScene, spec: ObjectSpec, name: str, segments: int
     builder = scene.create_actor_builder()
     thickness = 0.006
     builder.add_cylinder_collision(
-        pose=sapien.Pose(p=[0, 0, floor_z / 2], q=UPRIGHT), radius=r_bottom, half_length=floor_z / 2, density=600
+        pose=sapien.Pose(p=[0, 0, floor_z / 2], q=UPRIGHT),
+        radius=r_bottom,
+        half_length=floor_z / 2,
+        density=600,
     )
-    for wall_pose, half in frustum_wall(r_bottom, diameter / 2, height, floor_z, thickness, segments):
+    for wall_pose, half in frustum_wall(
+        r_bottom, diameter / 2, height, floor_z, thickness, segments
+    ):
         builder.add_box_collision(pose=wall_pose, half_size=half, density=600)
     path = str(mesh_path(spec.shape))
-    builder.add_visual_from_file(path, scale=[diameter, diameter, height], material=render_material(spec.material))
+    builder.add_visual_from_file(
+        path, scale=[diameter, diameter, height], material=render_material(spec.material)
+    )
     builder.initial_pose = sapien.Pose(p=[0, 0, 0])
     return builder.build(name=name)

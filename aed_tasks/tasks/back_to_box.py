@@ -85,7 +85,9 @@ class BackToBoxEnv(AEDBaseEnv):
     eval_horizon = 400
 
     @classmethod
-    def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:
+    def sample_objects(
+        cls, rng: np.random.Generator, split: str, index: int
+    ) -> dict[str, ObjectSpec]:
         toy_colour = pick(rng, object_colours(split))
         box_colour = pick(rng, [c for c in object_colours(split) if c != toy_colour])
         box_material = sample_material(rng, split)
@@ -97,15 +99,35 @@ class BackToBoxEnv(AEDBaseEnv):
             ),
             "box": ObjectSpec(
                 pick(rng, BOX_SHAPES[split]),
-                tuple(float(v) for v in (rng.uniform(0.09, 0.11), rng.uniform(0.11, 0.14), rng.uniform(0.044, 0.052), rng.uniform(0.005, 0.007))),
-                MaterialSpec(colour=box_colour, texture=box_material.texture, roughness=box_material.roughness),
+                tuple(
+                    float(v)
+                    for v in (
+                        rng.uniform(0.09, 0.11),
+                        rng.uniform(0.11, 0.14),
+                        rng.uniform(0.044, 0.052),
+                        rng.uniform(0.005, 0.007),
+                    )
+                ),
+                MaterialSpec(
+                    colour=box_colour,
+                    texture=box_material.texture,
+                    roughness=box_material.roughness,
+                ),
             ),
             "shelf": ObjectSpec(
                 pick(rng, SHELF_SHAPES[split]),
-                tuple(float(v) for v in (rng.uniform(0.2, 0.24), rng.uniform(0.3, 0.34), rng.uniform(0.075, 0.09), rng.uniform(0.19, 0.22))),
+                tuple(
+                    float(v)
+                    for v in (
+                        rng.uniform(0.2, 0.24),
+                        rng.uniform(0.3, 0.34),
+                        rng.uniform(0.075, 0.09),
+                        rng.uniform(0.19, 0.22),
+                    )
+                ),
                 sample_material(rng, split, tint=0.35),
             ),
-        }  # fmt: skip
+        }
 
     def _load_task(self, options: dict) -> None:
         objects = self.env_spec.objects
@@ -122,21 +144,34 @@ class BackToBoxEnv(AEDBaseEnv):
         self.shelf.set_pose(Pose.create_from_pq(p=[front_x, shelf_y, 0.0]))
         box_y = shelf_y + rng.uniform(-0.02, 0.02)
         box_x = rng.uniform(-0.2, -0.14) + box.depth / 2
-        self.box.set_pose(Pose.create_from_pq(p=[box_x, box_y, 0.0005], q=rotation_z(rng.uniform(-0.06, 0.06))))
+        self.box.set_pose(
+            Pose.create_from_pq(p=[box_x, box_y, 0.0005], q=rotation_z(rng.uniform(-0.06, 0.06)))
+        )
         side = 1.0 if rng.random() < 0.5 else -1.0
         toy_y = box_y + side * rng.uniform(0.15, 0.22)
         if abs(toy_y) > 0.32:
             toy_y = box_y - side * rng.uniform(0.15, 0.22)
         toy_x = rng.uniform(-0.28, -0.1)
         yaw = rng.uniform(-0.35, 0.35)
-        self.toy.set_pose(Pose.create_from_pq(p=[toy_x, toy_y, self.toy_edge / 2 + 0.0005], q=rotation_z(yaw)))
+        self.toy.set_pose(
+            Pose.create_from_pq(p=[toy_x, toy_y, self.toy_edge / 2 + 0.0005], q=rotation_z(yaw))
+        )
         keep_out = [(toy_x, toy_y, 0.05)]
-        keep_out += [(x, box_y, box.width / 2 + 0.03) for x in np.linspace(box_x - box.depth / 2 - 0.06, front_x, 6)]
-        keep_out += [(x, shelf_y + dy, 0.1) for x in np.linspace(front_x - 0.02, front_x + shelf.depth, 4) for dy in (-0.1, 0.0, 0.1)]
+        keep_out += [
+            (x, box_y, box.width / 2 + 0.03)
+            for x in np.linspace(box_x - box.depth / 2 - 0.06, front_x, 6)
+        ]
+        keep_out += [
+            (x, shelf_y + dy, 0.1)
+            for x in np.linspace(front_x - 0.02, front_x + shelf.depth, 4)
+            for dy in (-0.1, 0.0, 0.1)
+        ]
         keep_out += [(x, y, 0.05) for x, y in np.linspace([toy_x, toy_y], [box_x, box_y], 5)]
         self.place_distractors(rng, DISTRACTOR_REGION, keep_out)
         self.stage_reached = torch.zeros(self.num_envs, dtype=torch.int32, device=self.device)
-        self.highest = torch.zeros(self.num_envs, device=self.device)  # the toy's highest centre so far
+        self.highest = torch.zeros(
+            self.num_envs, device=self.device
+        )  # the toy's highest centre so far
 
     # --- evaluation -------------------------------------------------------------------------
     def toy_in_box(self) -> torch.Tensor:
@@ -144,15 +179,23 @@ class BackToBoxEnv(AEDBaseEnv):
         local = (self.box.pose.inv() * self.toy.pose).p
         half_x, half_y = self.box_geometry.inner_half
         inside = (local[:, 0].abs() < half_x) & (local[:, 1].abs() < half_y)
-        return inside & (local[:, 2] > self.box_geometry.floor) & (local[:, 2] < self.box_geometry.height)
+        return (
+            inside
+            & (local[:, 2] > self.box_geometry.floor)
+            & (local[:, 2] < self.box_geometry.height)
+        )
 
     def _box_corners_in_shelf(self) -> torch.Tensor:
         """(n, 4, 3): the corners of the box's footprint in the shelf's frame."""
         g = self.box_geometry
         corners = torch.tensor(
-            [[sx * g.depth / 2, sy * g.width / 2, 0.0, 1.0] for sx in (-1, 1) for sy in (-1, 1)], device=self.device
+            [[sx * g.depth / 2, sy * g.width / 2, 0.0, 1.0] for sx in (-1, 1) for sy in (-1, 1)],
+            device=self.device,
         )
-        to_shelf = self.shelf.pose.inv().to_transformation_matrix() @ self.box.pose.to_transformation_matrix()
+        to_shelf = (
+            self.shelf.pose.inv().to_transformation_matrix()
+            @ self.box.pose.to_transformation_matrix()
+        )
         return torch.einsum("nij,kj->nki", to_shelf, corners)[..., :3]
 
     def box_out_of_board(self) -> torch.Tensor:
@@ -173,7 +216,9 @@ class BackToBoxEnv(AEDBaseEnv):
         under = self.box_under_shelf()
         success = in_box & under
         self.highest = torch.maximum(self.highest, self.toy.pose.p[:, 2])
-        stage = torch.where(success, 3, torch.where(in_box, 2, torch.where(grasped & lifted, 1, 0))).to(torch.int32)
+        stage = torch.where(
+            success, 3, torch.where(in_box, 2, torch.where(grasped & lifted, 1, 0))
+        ).to(torch.int32)
         self.stage_reached = torch.maximum(self.stage_reached, stage)
         return {
             "success": success,
@@ -207,7 +252,11 @@ class BackToBoxEnv(AEDBaseEnv):
         if not in_box:
             return "the toy is not in the box"
         out = float(self.box_out_of_board()[0])
-        return "" if out >= CLEARLY_OUT else f"the box's rear is only {out * 100:.1f} cm before the board"
+        return (
+            ""
+            if out >= CLEARLY_OUT
+            else f"the box's rear is only {out * 100:.1f} cm before the board"
+        )
 
     # --- expert -----------------------------------------------------------------------------
     def expert_script(self, expert: ScriptedExpert, error: ErrorSpec | None) -> None:
@@ -243,10 +292,13 @@ class BackToBoxEnv(AEDBaseEnv):
         stop_before = None
         if kind == "miss_box":  # carry as the clean expert does, stop short beside the box
             side = np.sign(expert.tcp[1] - box[1]) or 1.0
-            miss_y = box[1] + side * (g.width / 2 + edge / 2 + expert.error_rng.uniform(0.065, 0.085))  # room for the fingers
+            miss_y = box[1] + side * (
+                g.width / 2 + edge / 2 + expert.error_rng.uniform(0.065, 0.085)
+            )  # room for the fingers
 
             def stop_before(waypoint: np.ndarray) -> bool:
                 return bool(side * (waypoint[1] - miss_y) <= 0)
+
         if expert.move_to(over_box, stop_before=stop_before):
             expert.mark_error()  # the carry stops here: the clean expert would go on to the box
             release = np.array([expert.tcp[0], miss_y, edge / 2 + 0.012])
@@ -273,9 +325,15 @@ class BackToBoxEnv(AEDBaseEnv):
         expert.close_gripper(6)
         expert.move_to(np.array([start_x, rear[1], push_z]), speed=expert.speed * 0.7)
         # the clean push goes on until the hand is as close to the board as it may come
-        stop_at = front_x - expert.error_rng.uniform(0.03, 0.09) if kind == "box_not_under" else None
-        self._push_until(expert, front_x + SHELF_RECESS, push_z, speed=expert.speed * 0.6, stop_at=stop_at)
-        if kind == "box_not_under":  # stops short of the shelf and backs away (marked where it stops)
+        stop_at = (
+            front_x - expert.error_rng.uniform(0.03, 0.09) if kind == "box_not_under" else None
+        )
+        self._push_until(
+            expert, front_x + SHELF_RECESS, push_z, speed=expert.speed * 0.6, stop_at=stop_at
+        )
+        if (
+            kind == "box_not_under"
+        ):  # stops short of the shelf and backs away (marked where it stops)
             expert.mark_error()
         expert.move_by([-expert.rng.uniform(0.04, 0.07), 0.0, 0.0])
         expert.move_by([0.0, 0.0, expert.rng.uniform(0.08, 0.12)])
@@ -287,7 +345,12 @@ class BackToBoxEnv(AEDBaseEnv):
         return rear.p[0].cpu().numpy().astype(np.float64)
 
     def _push_until(
-        self, expert: ScriptedExpert, goal: float, push_z: float, speed: float, stop_at: float | None = None
+        self,
+        expert: ScriptedExpert,
+        goal: float,
+        push_z: float,
+        speed: float,
+        stop_at: float | None = None,
     ) -> None:
         """Push along +x until the box's hindmost corner passes x = `goal`.
 
@@ -313,6 +376,8 @@ class BackToBoxEnv(AEDBaseEnv):
                 expert.mark_error()  # the clean push goes on from here
                 return
             advance = min(speed, remaining + 0.002, tcp_limit - tcp[0])
-            delta = np.array([advance, np.clip(line_y - tcp[1], -speed / 2, speed / 2), push_z - tcp[2]])
+            delta = np.array(
+                [advance, np.clip(line_y - tcp[1], -speed / 2, speed / 2), push_z - tcp[2]]
+            )
             expert.step(delta)
             stalled = stalled + 1 if np.linalg.norm(expert.tcp - tcp) < 5e-4 else 0

@@ -20,7 +20,9 @@ FRONT_X = (0.03, 0.08)  # world x of the cabinets' fronts
 CENTRE_Y = (-0.06, 0.06)  # world y of the seam between the two units
 SEAM = (0.012, 0.02)  # gap between the two units (the closed fingers span both panels across it)
 FINGER_FRONT = 0.010  # the closed fingers' front face, ahead of the TCP along +x
-PUSH_BELOW_TOP = 0.012  # the TCP pushes this far below the panel's top edge (the hand clears the cabinet)
+PUSH_BELOW_TOP = (
+    0.012  # the TCP pushes this far below the panel's top edge (the hand clears the cabinet)
+)
 DISTRACTOR_REGION = (-0.3, 0.15, -0.42, 0.42)
 
 
@@ -68,17 +70,32 @@ class CloseDrawerEnv(AEDBaseEnv):
     eval_horizon = 200
 
     @classmethod
-    def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:
+    def sample_objects(
+        cls, rng: np.random.Generator, split: str, index: int
+    ) -> dict[str, ObjectSpec]:
         target_colour, distractor_colour = pick(rng, object_colours(split), 2)
         target_shape, distractor_shape = pick(rng, DRAWER_SHAPES[split], 2)
-        cabinet_size = (float(rng.uniform(0.15, 0.18)), float(rng.uniform(0.17, 0.2)), float(rng.uniform(0.08, 0.1)))
+        cabinet_size = (
+            float(rng.uniform(0.15, 0.18)),
+            float(rng.uniform(0.17, 0.2)),
+            float(rng.uniform(0.08, 0.1)),
+        )
 
         def drawer(shape: str, colour: tuple[float, ...]) -> ObjectSpec:
-            handle = (float(rng.uniform(0.06, 0.09)), float(rng.uniform(0.018, 0.026)))  # length, reach
-            return ObjectSpec(shape, handle, MaterialSpec(colour=colour, roughness=float(rng.uniform(0.3, 0.6))))
+            handle = (
+                float(rng.uniform(0.06, 0.09)),
+                float(rng.uniform(0.018, 0.026)),
+            )  # length, reach
+            return ObjectSpec(
+                shape, handle, MaterialSpec(colour=colour, roughness=float(rng.uniform(0.3, 0.6)))
+            )
 
         return {
-            "cabinet": ObjectSpec(pick(rng, CABINET_SHAPES[split]), cabinet_size, sample_material(rng, split, tint=0.3)),
+            "cabinet": ObjectSpec(
+                pick(rng, CABINET_SHAPES[split]),
+                cabinet_size,
+                sample_material(rng, split, tint=0.3),
+            ),
             "target_drawer": drawer(target_shape, target_colour),
             "distractor_drawer": drawer(distractor_shape, distractor_colour),
         }
@@ -97,10 +114,14 @@ class CloseDrawerEnv(AEDBaseEnv):
         front_x = rng.uniform(*FRONT_X)
         seam_y = rng.uniform(*CENTRE_Y)
         offset = width / 2 + rng.uniform(*SEAM) / 2
-        side = 1.0 if rng.random() < 0.5 else -1.0  # +1: the target stands left (+y) of the distractor
+        side = (
+            1.0 if rng.random() < 0.5 else -1.0
+        )  # +1: the target stands left (+y) of the distractor
         openings = []
-        for unit, layout, sign in ((self.target_drawer, self.target_layout, side),
-                                   (self.distractor_drawer, self.distractor_layout, -side)):  # fmt: skip
+        for unit, layout, sign in (
+            (self.target_drawer, self.target_layout, side),
+            (self.distractor_drawer, self.distractor_layout, -side),
+        ):
             unit.set_pose(Pose.create_from_pq(p=[front_x, seam_y + sign * offset, 0.0]))
             opening = rng.uniform(OPENING[0], min(OPENING[1], layout.travel - 0.005))
             unit.set_qpos(torch.tensor([[opening]], dtype=torch.float32))
@@ -148,14 +169,22 @@ class CloseDrawerEnv(AEDBaseEnv):
     def error_outcome(self, kind: str) -> str:
         super().error_outcome(kind)
         info = self.evaluate()
-        target, distractor = float(info["target_opening"][0]), float(self.distractor_drawer.qpos[0, 0])
+        target, distractor = (
+            float(info["target_opening"][0]),
+            float(self.distractor_drawer.qpos[0, 0]),
+        )
         target_closed, distractor_closed = target < CLOSED_TOLERANCE, distractor < CLOSED_TOLERANCE
         shown = {
-            "not_fully_closed": target >= OPEN_AFTER_ERROR and float(info["distractor_shift"][0].abs()) < UNMOVED_TOLERANCE,
+            "not_fully_closed": target >= OPEN_AFTER_ERROR
+            and float(info["distractor_shift"][0].abs()) < UNMOVED_TOLERANCE,
             "closes_distractor": distractor_closed and target >= OPEN_AFTER_ERROR,
             "closes_both": target_closed and distractor_closed,
         }[kind]
-        return "" if shown else f"target out by {target * 100:.1f} cm, distractor out by {distractor * 100:.1f} cm"
+        return (
+            ""
+            if shown
+            else f"target out by {target * 100:.1f} cm, distractor out by {distractor * 100:.1f} cm"
+        )
 
     # --- expert -----------------------------------------------------------------------------
     def _front(self, unit, layout: DrawerLayout) -> tuple[np.ndarray, float, float]:
@@ -168,7 +197,9 @@ class CloseDrawerEnv(AEDBaseEnv):
     def expert_script(self, expert: ScriptedExpert, error: ErrorSpec | None) -> None:
         kind = error.kind if error else None
         target, target_front, target_closed = self._front(self.target_drawer, self.target_layout)
-        other, other_front, other_closed = self._front(self.distractor_drawer, self.distractor_layout)
+        other, other_front, other_closed = self._front(
+            self.distractor_drawer, self.distractor_layout
+        )
         expert.close_gripper(int(expert.rng.integers(5, 9)))  # push with the closed fingertips
         if kind == "closes_distractor":
             expert.mark_error()
@@ -179,29 +210,44 @@ class CloseDrawerEnv(AEDBaseEnv):
             layout = self.target_layout
             self._push_drawer(expert, seam_y, min(target_front, other_front), target_closed, layout)
         else:
-            stop_short = expert.error_rng.uniform(0.035, 0.06) if kind == "not_fully_closed" else None
-            self._push_drawer(expert, target[1], target_front, target_closed, self.target_layout, stop_short)
+            stop_short = (
+                expert.error_rng.uniform(0.035, 0.06) if kind == "not_fully_closed" else None
+            )
+            self._push_drawer(
+                expert, target[1], target_front, target_closed, self.target_layout, stop_short
+            )
         expert.move_by([-expert.rng.uniform(0.04, 0.07), 0.0, expert.rng.uniform(0.06, 0.1)])
         expert.wait(4)
 
     def _push_drawer(
-        self, expert: ScriptedExpert, y: float, front_x: float, closed_x: float, layout: DrawerLayout,
+        self,
+        expert: ScriptedExpert,
+        y: float,
+        front_x: float,
+        closed_x: float,
+        layout: DrawerLayout,
         stop_short: float | None = None,
-    ) -> None:  # fmt: skip
+    ) -> None:
         """Descend in front of the panel, then push it along +x until closed (or stop short)."""
         z = layout.panel_top_z - PUSH_BELOW_TOP
         start_x = front_x - FINGER_FRONT - layout.handle_reach - expert.rng.uniform(0.015, 0.03)
-        hover = np.array([start_x - expert.rng.uniform(0.0, 0.02), y, z + expert.rng.uniform(0.06, 0.12)])
+        hover = np.array(
+            [start_x - expert.rng.uniform(0.0, 0.02), y, z + expert.rng.uniform(0.06, 0.12)]
+        )
         expert.move_to(hover + np.array([0.0, expert.rng.uniform(-0.01, 0.01), 0.0]))
         expert.move_to(np.array([start_x, y, z]), speed=expert.speed * 0.7)
         end = np.array([closed_x - FINGER_FRONT + 0.008, y, z])
         stop_x = None if stop_short is None else closed_x - stop_short - FINGER_FRONT
-        for waypoint in resample(np.array([expert.tcp, end]), expert.speed * expert.rng.uniform(0.45, 0.65)):
+        for waypoint in resample(
+            np.array([expert.tcp, end]), expert.speed * expert.rng.uniform(0.45, 0.65)
+        ):
             if stop_x is not None and expert.tcp[0] >= stop_x:
                 expert.mark_error()  # the gripper stops pushing here
                 return
             expert.step(waypoint - expert.tcp)
-        for _ in range(12):  # lean on the panel until the tip is at the end (the joint limit stops it)
+        for _ in range(
+            12
+        ):  # lean on the panel until the tip is at the end (the joint limit stops it)
             if stop_x is not None and expert.tcp[0] >= stop_x:
                 expert.mark_error()
                 return

@@ -32,7 +32,10 @@ from aed_tasks.registration import register_task
 from aed_tasks.scene import TABLE_HEIGHT, rotation_z
 
 BOX_SHAPES = {"base": ("box_plain", "box_flanged"), "novel": ("box_handled", "box_cornered")}
-PRODUCT_SHAPES = {"base": ("product_carton", "product_can"), "novel": ("product_tub", "product_jar")}
+PRODUCT_SHAPES = {
+    "base": ("product_carton", "product_can"),
+    "novel": ("product_tub", "product_jar"),
+}
 CONVEYOR_SHAPES = {"base": ("conveyor_railed",), "novel": ("conveyor_rollered",)}
 # Factory looks, drawn from each split's own texture pool (concrete, epoxy, steel, plate).
 FACTORY_TEXTURES = {
@@ -68,7 +71,8 @@ MISS_OFFSET = 0.15  # `miss_belt` sets the box down this far (y) short of or pas
 
 
 def factory_background(rng: np.random.Generator, split: str) -> dict[str, MaterialSpec]:
-    """Floor, wall and table of a factory hall: concrete / plate floors, painted walls, steel tables."""
+    """Floor, wall and table of a factory hall: concrete / plate floors, painted walls, steel
+    tables."""
     pool = FACTORY_TEXTURES[split]
 
     def texture(part: str) -> str:
@@ -80,13 +84,17 @@ def factory_background(rng: np.random.Generator, split: str) -> dict[str, Materi
     shade = float(rng.uniform(0.75, 0.95))
     floor = tuple(shade * c for c in tints["floor"]) + (1.0,)
     return {
-        "floor": MaterialSpec(colour=floor, texture=texture("floor"), roughness=float(rng.uniform(0.6, 0.9))),
+        "floor": MaterialSpec(
+            colour=floor, texture=texture("floor"), roughness=float(rng.uniform(0.6, 0.9))
+        ),
         "wall": MaterialSpec(colour=(*tints["wall"], 1.0), texture=texture("wall"), roughness=0.9),
         "table": MaterialSpec(
-            colour=(*tints["table"], 1.0), texture=texture("table"),
-            roughness=float(rng.uniform(0.3, 0.5)), metallic=float(rng.uniform(0.5, 0.8)),
+            colour=(*tints["table"], 1.0),
+            texture=texture("table"),
+            roughness=float(rng.uniform(0.3, 0.5)),
+            metallic=float(rng.uniform(0.5, 0.8)),
         ),
-    }  # fmt: skip
+    }
 
 
 @register_task
@@ -139,31 +147,52 @@ class FactoryPackingEnv(AEDBaseEnv):
         return dataclasses.replace(env, **factory_background(rng, split))
 
     @classmethod
-    def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:
+    def sample_objects(
+        cls, rng: np.random.Generator, split: str, index: int
+    ) -> dict[str, ObjectSpec]:
         box_colour, product_colour, paint = pick(rng, object_colours(split), 3)
-        box_size = (float(rng.uniform(0.09, 0.11)), float(rng.uniform(0.054, 0.062)), float(rng.uniform(0.045, 0.058)))
+        box_size = (
+            float(rng.uniform(0.09, 0.11)),
+            float(rng.uniform(0.054, 0.062)),
+            float(rng.uniform(0.045, 0.058)),
+        )
         belt_texture = f"{split}/{pick(rng, FACTORY_TEXTURES[split]['belt'])}.png"
         return {
-            "box": ObjectSpec(pick(rng, BOX_SHAPES[split]), box_size, MaterialSpec(colour=box_colour, roughness=float(rng.uniform(0.5, 0.9)))),
+            "box": ObjectSpec(
+                pick(rng, BOX_SHAPES[split]),
+                box_size,
+                MaterialSpec(colour=box_colour, roughness=float(rng.uniform(0.5, 0.9))),
+            ),
             "product": ObjectSpec(
-                pick(rng, PRODUCT_SHAPES[split]), (float(rng.uniform(0.03, 0.036)), float(rng.uniform(0.034, 0.044))),
+                pick(rng, PRODUCT_SHAPES[split]),
+                (float(rng.uniform(0.03, 0.036)), float(rng.uniform(0.034, 0.044))),
                 MaterialSpec(colour=product_colour, roughness=float(rng.uniform(0.3, 0.7))),
             ),
             "conveyor": ObjectSpec(
-                pick(rng, CONVEYOR_SHAPES[split]), (BELT_WIDTH, float(rng.uniform(0.012, 0.02))),
+                pick(rng, CONVEYOR_SHAPES[split]),
+                (BELT_WIDTH, float(rng.uniform(0.012, 0.02))),
                 MaterialSpec(colour=paint, texture=belt_texture, roughness=0.5, metallic=0.3),
             ),
-        }  # fmt: skip
+        }
 
     # --- scene ------------------------------------------------------------------------------
     def _load_task(self, options: dict) -> None:
         objects = self.env_spec.objects
-        self.in_belt = build_conveyor(self.scene, objects["conveyor"], "in_conveyor", IN_BELT_X, IN_BELT_Y, -1)
-        self.out_belt = build_conveyor(self.scene, objects["conveyor"], "out_conveyor", OUT_BELT_X, OUT_BELT_Y, +1)
+        self.in_belt = build_conveyor(
+            self.scene, objects["conveyor"], "in_conveyor", IN_BELT_X, IN_BELT_Y, -1
+        )
+        self.out_belt = build_conveyor(
+            self.scene, objects["conveyor"], "out_conveyor", OUT_BELT_X, OUT_BELT_Y, +1
+        )
         self.box = build_packing_box(self.scene, objects["box"], "box")
         self.product = build_product(self.scene, objects["product"], "product")
         wall = self.env_spec.wall
-        build_pillars(self.scene, dataclasses.replace(wall, colour=(0.55, 0.56, 0.6, 1.0)), PILLARS, -TABLE_HEIGHT)
+        build_pillars(
+            self.scene,
+            dataclasses.replace(wall, colour=(0.55, 0.56, 0.6, 1.0)),
+            PILLARS,
+            -TABLE_HEIGHT,
+        )
 
     def _initialize_task(self, rng: np.random.Generator) -> None:
         self.in_belt.speed = float(rng.uniform(*BELT_SPEED))
@@ -171,11 +200,17 @@ class FactoryPackingEnv(AEDBaseEnv):
         for belt in (self.in_belt, self.out_belt):
             belt.actor.set_pose(belt.home)
         x, y = rng.uniform(*BOX_START_X), IN_BELT_Y + rng.uniform(-0.015, 0.015)
-        self.box.set_pose(Pose.create_from_pq(p=[x, y, BELT_TOP + 0.001], q=rotation_z(rng.uniform(-0.04, 0.04))))
+        self.box.set_pose(
+            Pose.create_from_pq(p=[x, y, BELT_TOP + 0.001], q=rotation_z(rng.uniform(-0.04, 0.04)))
+        )
         px, py = sample_free_xy(rng, PRODUCT_REGION, 0.0, [])
-        self.product.set_pose(Pose.create_from_pq(p=[px, py, 0.001], q=rotation_z(rng.uniform(-0.3, 0.3))))
+        self.product.set_pose(
+            Pose.create_from_pq(p=[px, py, 0.001], q=rotation_z(rng.uniform(-0.3, 0.3)))
+        )
         self.stage_reached = torch.zeros(self.num_envs, dtype=torch.int32, device=self.device)
-        self.box_highest = torch.zeros(self.num_envs, device=self.device)  # the box's highest bottom so far
+        self.box_highest = torch.zeros(
+            self.num_envs, device=self.device
+        )  # the box's highest bottom so far
 
     def _before_simulation_step(self) -> None:
         for belt in (self.in_belt, self.out_belt):
@@ -198,7 +233,9 @@ class FactoryPackingEnv(AEDBaseEnv):
     def product_in_box(self) -> torch.Tensor:
         length, width, height = self.env_spec.objects["box"].size
         local = (self.box.pose.inv() * self.product.pose).p
-        inside_xy = (torch.abs(local[:, 0]) < length / 2 - WALL_THICKNESS) & (torch.abs(local[:, 1]) < width / 2 - WALL_THICKNESS)
+        inside_xy = (torch.abs(local[:, 0]) < length / 2 - WALL_THICKNESS) & (
+            torch.abs(local[:, 1]) < width / 2 - WALL_THICKNESS
+        )
         inside_z = (local[:, 2] > 0) & (local[:, 2] < height)
         return inside_xy & inside_z
 
@@ -216,13 +253,20 @@ class FactoryPackingEnv(AEDBaseEnv):
         delivered = self.box_delivered() & ~grasped
         success = delivered & packed
         stage = torch.where(
-            success, 4, torch.where(picked, 3, torch.where(packed, 2, torch.where(self.box_arrived(), 1, 0)))
+            success,
+            4,
+            torch.where(picked, 3, torch.where(packed, 2, torch.where(self.box_arrived(), 1, 0))),
         ).to(torch.int32)
         self.stage_reached = torch.maximum(self.stage_reached, stage)
         self.box_highest = torch.maximum(self.box_highest, self.box.pose.p[:, 2])
         # an empty box at the destination is out of reach for good
         fail = self.objects_off_table(self.box, self.product) | (delivered & ~packed)
-        return {"success": success, "fail": fail, "stage": self.stage_reached.clone(), "is_grasped": grasped}
+        return {
+            "success": success,
+            "fail": fail,
+            "stage": self.stage_reached.clone(),
+            "is_grasped": grasped,
+        }
 
     def state_entities(self) -> dict:
         return {"box": self.box, "product": self.product}
@@ -322,7 +366,11 @@ class FactoryPackingEnv(AEDBaseEnv):
         expert.move_to(hover, speed=expert.speed * 0.6, tol=0.003)
         if kind == "no_grasp_box":  # close the fingers on the air beyond the box's open end
             expert.mark_error()
-            expert.move_to(grasp + np.array([length / 2 + 0.035, 0.0, 0.0]), speed=expert.speed * 0.6, tol=0.004)
+            expert.move_to(
+                grasp + np.array([length / 2 + 0.035, 0.0, 0.0]),
+                speed=expert.speed * 0.6,
+                tol=0.004,
+            )
             expert.close_gripper()
             expert.move_by([0.0, 0.0, expert.rng.uniform(0.08, 0.12)], speed=expert.speed * 0.7)
             expert.wait(4)
@@ -337,7 +385,13 @@ class FactoryPackingEnv(AEDBaseEnv):
         """Set the box down on the outgoing belt (or, with `miss_belt`, beside it) and let go."""
         height = self.env_spec.objects["box"].size[2]
         drop_x = expert.rng.uniform(-0.06, 0.0)
-        target = np.array([drop_x, OUT_BELT_Y + expert.rng.uniform(-0.01, 0.01), BELT_TOP + 0.008 + height - 0.018])
+        target = np.array(
+            [
+                drop_x,
+                OUT_BELT_Y + expert.rng.uniform(-0.01, 0.01),
+                BELT_TOP + 0.008 + height - 0.018,
+            ]
+        )
         over_belt = np.array([target[0], target[1], expert.tcp[2]])
         if kind == "miss_belt":  # on the table short of the belt, or past it
             short = bool(expert.error_rng.random() < 0.5)

@@ -1,4 +1,5 @@
-"""Move Glass Cup: carry a glass of water to the coaster the demonstrations chose, spilling nothing."""
+"""Move Glass Cup: carry a glass of water to the coaster the demonstrations chose, spilling
+nothing."""
 
 from __future__ import annotations
 
@@ -21,19 +22,34 @@ from aed_tasks.objects.glass import (
 from aed_tasks.registration import register_task
 from aed_tasks.scene import rotation_z
 
-GLASS_SHAPES = {"base": ("glass_tumbler", "glass_tapered"), "novel": ("glass_octagonal", "glass_round_bottom")}
-COASTER_SHAPES = {"base": ("coaster_round", "coaster_square"), "novel": ("coaster_hexagon", "coaster_oval")}
+GLASS_SHAPES = {
+    "base": ("glass_tumbler", "glass_tapered"),
+    "novel": ("glass_octagonal", "glass_round_bottom"),
+}
+COASTER_SHAPES = {
+    "base": ("coaster_round", "coaster_square"),
+    "novel": ("coaster_hexagon", "coaster_oval"),
+}
 GLASS_REGION = (-0.22, -0.09, -0.2, 0.2)  # x0, x1, y0, y1 on the table top
 COASTER_REGION = (-0.03, 0.12, -0.24, 0.24)
 TABLE_REACH = (-0.26, 0.15, -0.28, 0.28)  # where the expert may put the glass down
-FILL = (0.55, 0.7)  # water level as a fraction of the glass height (the spill needs headroom under 6 cm)
-RIM_CLEARANCE = 0.010  # grasp this close under the rim: the palm (3.7 cm above the tcp) leaves a gap
+FILL = (
+    0.55,
+    0.7,
+)  # water level as a fraction of the glass height (the spill needs headroom under 6 cm)
+RIM_CLEARANCE = (
+    0.010  # grasp this close under the rim: the palm (3.7 cm above the tcp) leaves a gap
+)
 MAX_DROPS = 28  # drops in the fullest glass
 SPILL_MARGIN = 0.003  # a drop this far outside the wall has left the glass
 UPRIGHT_TILT = 15.0  # degrees: the glass stands upright with its axis within this of vertical
 UNTOUCHED = 0.01  # m: `no_grasp` leaves the glass within this of its start (it never moved)
 OFF_HEADING = 50.0  # degrees: `off_coaster` heads this far off the way to the target coaster
-DIP_UP, DIP_DOWN, DIP_ASIDE = 3, 2, 2  # `spill`: steps at full speed up, down, then down and sideways
+DIP_UP, DIP_DOWN, DIP_ASIDE = (
+    3,
+    2,
+    2,
+)  # `spill`: steps at full speed up, down, then down and sideways
 
 
 @register_task
@@ -81,7 +97,9 @@ class MoveGlassCupEnv(AEDBaseEnv):
     eval_horizon = 300
 
     @classmethod
-    def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:
+    def sample_objects(
+        cls, rng: np.random.Generator, split: str, index: int
+    ) -> dict[str, ObjectSpec]:
         glass_hue, target_colour, distractor_colour = pick(rng, object_colours(split), 3)
         return {
             "glass": sample_glass(rng, split, glass_hue),
@@ -94,16 +112,22 @@ class MoveGlassCupEnv(AEDBaseEnv):
         self.glass = build_glass(self.scene, objects["glass"], "glass")
         self.drops = build_water(self.scene, objects["glass"], "water")
         self.target_coaster = build_coaster(self.scene, objects["target_coaster"], "target_coaster")
-        self.distractor_coaster = build_coaster(self.scene, objects["distractor_coaster"], "distractor_coaster")
+        self.distractor_coaster = build_coaster(
+            self.scene, objects["distractor_coaster"], "distractor_coaster"
+        )
         self.geometry = glass_geometry(objects["glass"])
         # the outer wall as tensors, for the per-step spill check
         self.wall_radii, self.wall_heights = (
-            torch.tensor(v, dtype=torch.float32, device=self.device) for v in self.geometry.wall.T.copy()
+            torch.tensor(v, dtype=torch.float32, device=self.device)
+            for v in self.geometry.wall.T.copy()
         )
 
     def _initialize_task(self, rng: np.random.Generator) -> None:
         keep_out: list[tuple[float, float, float]] = []
-        for coaster, key in ((self.target_coaster, "target_coaster"), (self.distractor_coaster, "distractor_coaster")):
+        for coaster, key in (
+            (self.target_coaster, "target_coaster"),
+            (self.distractor_coaster, "distractor_coaster"),
+        ):
             radius = self.env_spec.objects[key].size[0] / 2
             x, y = sample_free_xy(rng, COASTER_REGION, radius + 0.025, keep_out)
             keep_out.append((x, y, radius))
@@ -119,19 +143,26 @@ class MoveGlassCupEnv(AEDBaseEnv):
         self.stage_reached = torch.zeros(self.num_envs, dtype=torch.int32, device=self.device)
         self.spilled = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
         self.glass_start = self.glass.pose.p.clone()
-        self.glass_travel = torch.zeros(self.num_envs, device=self.device)  # farthest from the start so far
+        self.glass_travel = torch.zeros(
+            self.num_envs, device=self.device
+        )  # farthest from the start so far
 
     def _place(self, actor, position: list[float], yaw: float) -> None:
-        actor.set_pose(Pose.create_from_pq(p=position, q=rotation_z(yaw)))  # (ManiSkill zeroed velocities)
+        actor.set_pose(
+            Pose.create_from_pq(p=position, q=rotation_z(yaw))
+        )  # (ManiSkill zeroed velocities)
 
     # --- evaluation -------------------------------------------------------------------------
     def drops_outside(self) -> torch.Tensor:
-        """(num_envs, drops): which drops are outside the glass (beyond its wall, below or far above)."""
+        """(num_envs, drops): which drops are outside the glass (beyond its wall, below or far
+        above)."""
         frame = self.glass.pose.to_transformation_matrix()  # (b, 4, 4)
         drops = torch.stack([d.pose.p for d in self.drops], dim=1)  # (b, n, 3)
         local = torch.einsum("bji,bnj->bni", frame[:, :3, :3], drops - frame[:, None, :3, 3])
         radial = torch.linalg.norm(local[..., :2], dim=-1)
-        beyond_wall = radial > interp(local[..., 2], self.wall_heights, self.wall_radii) + SPILL_MARGIN
+        beyond_wall = (
+            radial > interp(local[..., 2], self.wall_heights, self.wall_radii) + SPILL_MARGIN
+        )
         below = local[..., 2] < -0.01
         flown = local[..., 2] > self.geometry.height + 0.05
         return beyond_wall | below | flown
@@ -141,7 +172,9 @@ class MoveGlassCupEnv(AEDBaseEnv):
         offset = self.glass.pose.p - self.target_coaster.pose.p
         centred = torch.linalg.norm(offset[:, :2], dim=1) < coaster_support_radius(spec) * 0.75
         resting = (offset[:, 2] - spec.size[1]).abs() < 0.006
-        upright = self.glass.pose.to_transformation_matrix()[:, 2, 2] > np.cos(np.deg2rad(UPRIGHT_TILT))
+        upright = self.glass.pose.to_transformation_matrix()[:, 2, 2] > np.cos(
+            np.deg2rad(UPRIGHT_TILT)
+        )
         return centred & resting & upright
 
     def evaluate(self) -> dict[str, torch.Tensor]:
@@ -165,7 +198,11 @@ class MoveGlassCupEnv(AEDBaseEnv):
         }
 
     def state_entities(self) -> dict:
-        return {"glass": self.glass, "target_coaster": self.target_coaster, "distractor_coaster": self.distractor_coaster}
+        return {
+            "glass": self.glass,
+            "target_coaster": self.target_coaster,
+            "distractor_coaster": self.distractor_coaster,
+        }
 
     def error_outcome(self, kind: str) -> str:
         super().error_outcome(kind)
@@ -183,10 +220,19 @@ class MoveGlassCupEnv(AEDBaseEnv):
         glass = self.glass.pose.p[0].cpu().numpy()
         if self.glass.pose.to_transformation_matrix()[0, 2, 2] < np.cos(np.deg2rad(UPRIGHT_TILT)):
             return "the glass fell over"
-        for coaster, key in ((self.target_coaster, "target_coaster"), (self.distractor_coaster, "distractor_coaster")):
+        for coaster, key in (
+            (self.target_coaster, "target_coaster"),
+            (self.distractor_coaster, "distractor_coaster"),
+        ):
             distance = float(np.linalg.norm(glass[:2] - coaster.pose.p[0, :2].cpu().numpy()))
-            if distance < coaster_support_radius(self.env_spec.objects[key]) + self.geometry.diameter / 2:
-                return f"the glass stands {distance * 100:.1f} cm from the centre of the {key.replace('_', ' ')}"
+            if (
+                distance
+                < coaster_support_radius(self.env_spec.objects[key]) + self.geometry.diameter / 2
+            ):
+                return (
+                    f"the glass stands {distance * 100:.1f} cm from the centre of the "
+                    f"{key.replace('_', ' ')}"
+                )
         return ""
 
     # --- expert -----------------------------------------------------------------------------
@@ -198,7 +244,9 @@ class MoveGlassCupEnv(AEDBaseEnv):
         hover = glass + np.array([0.0, 0.0, height + expert.rng.uniform(0.05, 0.09)])
 
         expert.move_to(hover + expert.jitter(0.02))
-        if kind == "no_grasp":  # close the fingers in front of (or behind) the glass instead of around it
+        if (
+            kind == "no_grasp"
+        ):  # close the fingers in front of (or behind) the glass instead of around it
             expert.mark_error()
             side = np.sign(expert.rng.uniform(-1, 1)) * (self.geometry.diameter / 2 + 0.03)
             expert.move_to(grasp + np.array([side, 0.0, 0.0]), speed=expert.speed * 0.6)
@@ -213,7 +261,9 @@ class MoveGlassCupEnv(AEDBaseEnv):
         put_down = np.array([coaster[0], coaster[1], coaster_top + grasp[2] - glass[2] + 0.004])
         if kind == "off_coaster":  # head for a spot on the table instead
             expert.mark_error()
-            put_down[:2] = self._table_spot(expert.error_rng, expert.tcp[:2], put_down[:2], glass[:2])
+            put_down[:2] = self._table_spot(
+                expert.error_rng, expert.tcp[:2], put_down[:2], glass[:2]
+            )
             put_down[2] = grasp[2] - glass[2] + 0.005
         above = np.array([put_down[0], put_down[1], expert.tcp[2]]) + expert.jitter(0.01)
         # `spill`: carried as the clean expert does until part of the way over, then a lurch
@@ -235,15 +285,24 @@ class MoveGlassCupEnv(AEDBaseEnv):
         (or as far off as there is): the path visibly heads elsewhere from its first steps."""
         radius = self.geometry.diameter / 2 + 0.015
         clear = [
-            (*c.pose.p[0, :2].cpu().numpy().astype(np.float64), self.env_spec.objects[k].size[0] / np.sqrt(2))
-            for c, k in ((self.target_coaster, "target_coaster"), (self.distractor_coaster, "distractor_coaster"))
+            (
+                *c.pose.p[0, :2].cpu().numpy().astype(np.float64),
+                self.env_spec.objects[k].size[0] / np.sqrt(2),
+            )
+            for c, k in (
+                (self.target_coaster, "target_coaster"),
+                (self.distractor_coaster, "distractor_coaster"),
+            )
         ]
         heading = target - here
         best, best_cos = None, 1.0
         for _ in range(400):
             angle, distance = rng.uniform(0, 2 * np.pi), rng.uniform(0.12, 0.22)
             spot = target + distance * np.array([np.cos(angle), np.sin(angle)])
-            inside = TABLE_REACH[0] < spot[0] < TABLE_REACH[1] and TABLE_REACH[2] < spot[1] < TABLE_REACH[3]
+            inside = (
+                TABLE_REACH[0] < spot[0] < TABLE_REACH[1]
+                and TABLE_REACH[2] < spot[1] < TABLE_REACH[3]
+            )
             if not inside or any(np.hypot(*(spot - [x, y])) <= r + radius for x, y, r in clear):
                 continue
             way = spot - here
@@ -262,7 +321,12 @@ def sample_glass(rng: np.random.Generator, split: str, hue: tuple[float, ...]) -
     tint = tuple(float(0.72 + 0.28 * c) for c in hue[:3]) + (1.0,)
     spec = ObjectSpec(
         pick(rng, GLASS_SHAPES[split]),
-        (float(rng.uniform(0.05, 0.06)), float(rng.uniform(0.09, 0.12)), 64.0, float(rng.uniform(0.0062, 0.0072))),
+        (
+            float(rng.uniform(0.05, 0.06)),
+            float(rng.uniform(0.09, 0.12)),
+            64.0,
+            float(rng.uniform(0.0062, 0.0072)),
+        ),
         MaterialSpec(colour=tint, roughness=0.05),
     )
     spots = drop_spots(spec, np.random.default_rng(0))
@@ -275,7 +339,11 @@ def sample_coaster(rng: np.random.Generator, split: str, colour: tuple[float, ..
     """A thin coaster of a split shape and colour, plain or under a split texture."""
     texture = pick(rng, texture_names(split)) if rng.random() < 0.5 else None
     size = (float(rng.uniform(0.095, 0.115)), float(rng.uniform(0.004, 0.008)))
-    return ObjectSpec(pick(rng, COASTER_SHAPES[split]), size, MaterialSpec(colour=tuple(colour), texture=texture, roughness=0.8))
+    return ObjectSpec(
+        pick(rng, COASTER_SHAPES[split]),
+        size,
+        MaterialSpec(colour=tuple(colour), texture=texture, roughness=0.8),
+    )
 
 
 def interp(x: torch.Tensor, xp: torch.Tensor, fp: torch.Tensor) -> torch.Tensor:
@@ -287,9 +355,13 @@ def interp(x: torch.Tensor, xp: torch.Tensor, fp: torch.Tensor) -> torch.Tensor:
 
 
 def carry_to(
-    expert: ScriptedExpert, target: np.ndarray, speed: float, ramp: int = 8, settle: int = 10,
+    expert: ScriptedExpert,
+    target: np.ndarray,
+    speed: float,
+    ramp: int = 8,
+    settle: int = 10,
     stop_at: float | None = None,
-) -> bool:  # fmt: skip
+) -> bool:
     """Follow a planned path to `target` with raised-cosine speed ramps: no jolt spills the water.
 
     With `stop_at` (a fraction of the path), stop there at cruise speed, with no ramp down, and

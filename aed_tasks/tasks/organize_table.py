@@ -83,41 +83,62 @@ class OrganizeTableEnv(AEDBaseEnv):
     eval_horizon = 390
 
     @classmethod
-    def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:
+    def sample_objects(
+        cls, rng: np.random.Generator, split: str, index: int
+    ) -> dict[str, ObjectSpec]:
         item_colour, target_colour, distractor_colour = pick(rng, object_colours(split), 3)
         return {
             "item": ObjectSpec(
-                (shape := pick(rng, ITEM_SHAPES[split])), _item_size(rng, shape),
+                (shape := pick(rng, ITEM_SHAPES[split])),
+                _item_size(rng, shape),
                 MaterialSpec(colour=item_colour, roughness=float(rng.uniform(0.3, 0.7))),
             ),
             "target_shelf": _shelf_spec(rng, split, target_colour),
             "distractor_shelf": _shelf_spec(rng, split, distractor_colour),
-        }  # fmt: skip
+        }
 
     def _load_task(self, options: dict) -> None:
         objects = self.env_spec.objects
         self.item = build_item(self.scene, objects["item"], "item")
         self.target_shelf = build_shelf(self.scene, objects["target_shelf"], "target_shelf")
-        self.distractor_shelf = build_shelf(self.scene, objects["distractor_shelf"], "distractor_shelf")
+        self.distractor_shelf = build_shelf(
+            self.scene, objects["distractor_shelf"], "distractor_shelf"
+        )
 
     def _initialize_task(self, rng: np.random.Generator) -> None:
         side = 1.0 if rng.random() < 0.5 else -1.0
-        for shelf, key, sign in ((self.target_shelf, "target_shelf", side), (self.distractor_shelf, "distractor_shelf", -side)):
+        for shelf, key, sign in (
+            (self.target_shelf, "target_shelf", side),
+            (self.distractor_shelf, "distractor_shelf", -side),
+        ):
             half_depth = self.env_spec.objects[key].size[1] / 2
             x = rng.uniform(*SHELF_FRONT_X) + half_depth
             shelf.set_pose(Pose.create_from_pq(p=[x, sign * rng.uniform(*SHELF_SIDE_Y), 0.0]))
         x0, x1, y0, y1 = ITEM_REGION
         item_xy = [rng.uniform(x0, x1), rng.uniform(y0, y1)]
-        self.item.set_pose(Pose.create_from_pq(p=[*item_xy, 0.0005], q=rotation_z(rng.uniform(-ITEM_YAW, ITEM_YAW))))
+        self.item.set_pose(
+            Pose.create_from_pq(
+                p=[*item_xy, 0.0005], q=rotation_z(rng.uniform(-ITEM_YAW, ITEM_YAW))
+            )
+        )
         self.stage_reached = torch.zeros(self.num_envs, dtype=torch.int32, device=self.device)
-        self.highest = torch.zeros(self.num_envs, device=self.device)  # the item's highest bottom so far
+        self.highest = torch.zeros(
+            self.num_envs, device=self.device
+        )  # the item's highest bottom so far
 
     # --- evaluation -------------------------------------------------------------------------
     def _corners_under(self) -> torch.Tensor:
         """(n, 8): which corners of the item lie in the free space under the target shelf."""
         half_width, half_depth, clearance = shelf_opening(self.env_spec.objects["target_shelf"])
-        rel = item_corners(self.item, self.env_spec.objects["item"]) - self.target_shelf.pose.p[:, None, :]
-        return (rel[..., 0].abs() <= half_depth) & (rel[..., 1].abs() <= half_width) & (rel[..., 2] <= clearance)
+        rel = (
+            item_corners(self.item, self.env_spec.objects["item"])
+            - self.target_shelf.pose.p[:, None, :]
+        )
+        return (
+            (rel[..., 0].abs() <= half_depth)
+            & (rel[..., 1].abs() <= half_width)
+            & (rel[..., 2] <= clearance)
+        )
 
     def _fully_under(self) -> torch.Tensor:
         """Every corner of the item under the target shelf, the item lying on the table."""
@@ -134,7 +155,9 @@ class OrganizeTableEnv(AEDBaseEnv):
         half_depth = self.env_spec.objects["target_shelf"].size[1] / 2
         rel = self.item.pose.p - self.target_shelf.pose.p
         ahead = rel[:, 0] + half_depth  # item centre relative to the mouth plane
-        in_lane = (rel[:, 1].abs() < LANE_HALF_WIDTH) & (ahead > -LANE_DEPTH) & (ahead < 2 * half_depth)
+        in_lane = (
+            (rel[:, 1].abs() < LANE_HALF_WIDTH) & (ahead > -LANE_DEPTH) & (ahead < 2 * half_depth)
+        )
         return in_lane & (self.item.pose.p[:, 2] < 0.01)
 
     def evaluate(self) -> dict[str, torch.Tensor]:
@@ -143,7 +166,9 @@ class OrganizeTableEnv(AEDBaseEnv):
         placed = self._in_front_of_target() & ~grasped
         under = self._fully_under() & ~grasped
         self.highest = torch.maximum(self.highest, self.item.pose.p[:, 2])
-        stage = torch.where(under, 3, torch.where(placed, 2, torch.where(picked, 1, 0))).to(torch.int32)
+        stage = torch.where(under, 3, torch.where(placed, 2, torch.where(picked, 1, 0))).to(
+            torch.int32
+        )
         self.stage_reached = torch.maximum(self.stage_reached, stage)
         return {
             "success": under,
@@ -153,7 +178,11 @@ class OrganizeTableEnv(AEDBaseEnv):
         }
 
     def state_entities(self) -> dict:
-        return {"item": self.item, "target_shelf": self.target_shelf, "distractor_shelf": self.distractor_shelf}
+        return {
+            "item": self.item,
+            "target_shelf": self.target_shelf,
+            "distractor_shelf": self.distractor_shelf,
+        }
 
     def error_outcome(self, kind: str) -> str:
         problem = super().error_outcome(kind)
@@ -189,13 +218,20 @@ class OrganizeTableEnv(AEDBaseEnv):
 
     def _item_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Bottom centre and bounding-box corners (8, 3) of the item, as read now."""
-        corners = item_corners(self.item, self.env_spec.objects["item"])[0].cpu().numpy().astype(np.float64)
+        corners = (
+            item_corners(self.item, self.env_spec.objects["item"])[0]
+            .cpu()
+            .numpy()
+            .astype(np.float64)
+        )
         return self.item.pose.p[0].cpu().numpy().astype(np.float64), corners
 
     def _mouth(self) -> tuple[float, float]:
         """x of the target shelf's mouth and y of its centre line."""
         shelf = self.target_shelf.pose.p[0].cpu().numpy()
-        return float(shelf[0] - shelf_opening(self.env_spec.objects["target_shelf"])[1]), float(shelf[1])
+        return float(shelf[0] - shelf_opening(self.env_spec.objects["target_shelf"])[1]), float(
+            shelf[1]
+        )
 
     def _pick(self, expert: ScriptedExpert, kind: str | None) -> None:
         position, corners = self._item_state()
@@ -207,7 +243,9 @@ class OrganizeTableEnv(AEDBaseEnv):
         expert.move_to(hover + expert.jitter(0.003))  # straight over it: the descent stays vertical
         if kind == "no_grasp":  # close the fingers just past one end of the item
             expert.mark_error()
-            grasp[0] += np.sign(expert.error_rng.uniform(-1, 1)) * (length / 2 + expert.error_rng.uniform(0.025, 0.035))
+            grasp[0] += np.sign(expert.error_rng.uniform(-1, 1)) * (
+                length / 2 + expert.error_rng.uniform(0.025, 0.035)
+            )
         expert.move_to(grasp, speed=expert.speed * 0.6)
         expert.close_gripper()
         expert.move_by([0.0, 0.0, expert.rng.uniform(0.06, 0.10)], speed=expert.speed * 0.7)
@@ -216,11 +254,13 @@ class OrganizeTableEnv(AEDBaseEnv):
         """Carry the item to the target's lane and set it down; returns the TCP's place point."""
         length, _, height = self.env_spec.objects["item"].size
         mouth_x, centre_y = self._mouth()
-        place = np.array([
-            mouth_x - expert.rng.uniform(0.035, 0.06) - length / 2,
-            centre_y + expert.rng.uniform(-0.008, 0.008),
-            max(height * 0.5, 0.016) + 0.004,
-        ])  # fmt: skip
+        place = np.array(
+            [
+                mouth_x - expert.rng.uniform(0.035, 0.06) - length / 2,
+                centre_y + expert.rng.uniform(-0.008, 0.008),
+                max(height * 0.5, 0.016) + 0.004,
+            ]
+        )
         above = np.array([place[0], place[1], expert.tcp[2]])
         drop_at = expert.error_rng.uniform(0.25, 0.55) if kind == "drop_while_moving" else None
         _carry(expert, above, drop_at)
@@ -228,7 +268,9 @@ class OrganizeTableEnv(AEDBaseEnv):
         expert.open_gripper()
         return place
 
-    def _push_under(self, expert: ScriptedExpert, kind: str | None, blind_at: np.ndarray | None = None) -> None:
+    def _push_under(
+        self, expert: ScriptedExpert, kind: str | None, blind_at: np.ndarray | None = None
+    ) -> None:
         """Get behind the item, close the fingers and push it along +x under the shelf.
 
         With `blind_at` (a place point of `_carry_and_place`) the push goes where the item
@@ -241,7 +283,9 @@ class OrganizeTableEnv(AEDBaseEnv):
             y, rear, top = position[1], corners[:, 0].min(), corners[:, 2].max()
         else:
             y, rear, top = blind_at[1], blind_at[0] - length / 2, height
-        start_x = min(rear - FINGER_HALF - expert.rng.uniform(0.012, 0.02), mouth_x - WRIST_LEAD - 0.015)
+        start_x = min(
+            rear - FINGER_HALF - expert.rng.uniform(0.012, 0.02), mouth_x - WRIST_LEAD - 0.015
+        )
         if expert.tcp[2] < top and abs(expert.tcp[1] - y) < 0.01 and expert.tcp[0] > rear:
             # just released it: slide back out between the item and the open fingers
             expert.move_to(np.array([start_x, y, expert.tcp[2]]), speed=expert.speed * 0.6)
@@ -251,19 +295,28 @@ class OrganizeTableEnv(AEDBaseEnv):
         expert.move_to(np.array([start_x, y, PUSH_Z]), speed=expert.speed * 0.6)
         end_x = mouth_x + expert.rng.uniform(0.012, 0.022) - FINGER_HALF
         stop_before = None
-        if kind == "not_fully_under":  # push as the clean expert does, stop with the item sticking out
+        if (
+            kind == "not_fully_under"
+        ):  # push as the clean expert does, stop with the item sticking out
             stop_x = mouth_x - expert.error_rng.uniform(0.012, 0.5 * length) - FINGER_HALF
 
             def stop_before(waypoint: np.ndarray) -> bool:
                 return bool(waypoint[0] > stop_x)
-        if expert.move_to(np.array([end_x, y, PUSH_Z]), speed=expert.rng.uniform(0.006, 0.009), stop_before=stop_before):
+
+        if expert.move_to(
+            np.array([end_x, y, PUSH_Z]),
+            speed=expert.rng.uniform(0.006, 0.009),
+            stop_before=stop_before,
+        ):
             expert.mark_error()  # the push stops here: the clean expert would go on
         expert.move_to(np.array([start_x - 0.03, y, PUSH_Z + 0.01]), speed=expert.speed * 0.8)
         expert.move_by([0.0, 0.0, expert.rng.uniform(0.06, 0.1)])
         expert.wait(4)
 
 
-def _carry(expert: ScriptedExpert, target: np.ndarray, drop_at: float | None, tol: float = 0.006) -> None:
+def _carry(
+    expert: ScriptedExpert, target: np.ndarray, drop_at: float | None, tol: float = 0.006
+) -> None:
     """`expert.move_to(target)`, but opening the gripper at fraction `drop_at` of the way."""
     waypoints = resample(expert.plan(target), expert.speed)
     drop_step = None if drop_at is None else int(len(waypoints) * drop_at)
@@ -286,10 +339,20 @@ def _item_size(rng: np.random.Generator, shape: str) -> tuple[float, float, floa
     if shape == "item_loaf":  # taller than wide: the round roof sits on a box of at least 4 mm
         width = float(rng.uniform(0.04, 0.046))
         return float(rng.uniform(0.055, 0.085)), width, float(rng.uniform(width + 0.004, 0.052))
-    return float(rng.uniform(0.055, 0.085)), float(rng.uniform(0.04, 0.052)), float(rng.uniform(0.034, 0.042))
+    return (
+        float(rng.uniform(0.055, 0.085)),
+        float(rng.uniform(0.04, 0.052)),
+        float(rng.uniform(0.034, 0.042)),
+    )
 
 
-def _shelf_spec(rng: np.random.Generator, split: str, colour: tuple[float, float, float, float]) -> ObjectSpec:
+def _shelf_spec(
+    rng: np.random.Generator, split: str, colour: tuple[float, float, float, float]
+) -> ObjectSpec:
     size = sample_shelf_size(rng)
-    material = MaterialSpec(colour=colour, texture=pick(rng, texture_names(split)), roughness=float(rng.uniform(0.5, 0.9)))
+    material = MaterialSpec(
+        colour=colour,
+        texture=pick(rng, texture_names(split)),
+        roughness=float(rng.uniform(0.5, 0.9)),
+    )
     return ObjectSpec(pick(rng, SHELF_SHAPES[split]), size, material)

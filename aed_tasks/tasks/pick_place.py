@@ -68,7 +68,9 @@ class PickPlaceEnv(AEDBaseEnv):
     eval_horizon = 250
 
     @classmethod
-    def sample_objects(cls, rng: np.random.Generator, split: str, index: int) -> dict[str, ObjectSpec]:
+    def sample_objects(
+        cls, rng: np.random.Generator, split: str, index: int
+    ) -> dict[str, ObjectSpec]:
         vessel_colour, target_colour, distractor_colour = pick(rng, object_colours(split), 3)
         bowl_shape = pick(rng, BOWL_SHAPES[split])
         bowl_size = (float(rng.uniform(0.15, 0.18)), float(rng.uniform(0.045, 0.06)))
@@ -78,7 +80,9 @@ class PickPlaceEnv(AEDBaseEnv):
                 (float(rng.uniform(0.052, 0.062)), float(rng.uniform(0.075, 0.095))),
                 MaterialSpec(colour=vessel_colour, roughness=0.4),
             ),
-            "target_bowl": ObjectSpec(bowl_shape, bowl_size, MaterialSpec(colour=target_colour, roughness=0.5)),
+            "target_bowl": ObjectSpec(
+                bowl_shape, bowl_size, MaterialSpec(colour=target_colour, roughness=0.5)
+            ),
             "distractor_bowl": ObjectSpec(
                 pick(rng, BOWL_SHAPES[split]),
                 (float(rng.uniform(0.15, 0.18)), float(rng.uniform(0.045, 0.06))),
@@ -94,7 +98,10 @@ class PickPlaceEnv(AEDBaseEnv):
 
     def _initialize_task(self, rng: np.random.Generator) -> None:
         keep_out: list[tuple[float, float, float]] = []
-        for bowl, key in ((self.target_bowl, "target_bowl"), (self.distractor_bowl, "distractor_bowl")):
+        for bowl, key in (
+            (self.target_bowl, "target_bowl"),
+            (self.distractor_bowl, "distractor_bowl"),
+        ):
             radius = self.env_spec.objects[key].size[0] / 2
             x, y = sample_free_xy(rng, BOWL_REGION, radius + 0.02, keep_out)
             keep_out.append((x, y, radius))
@@ -104,7 +111,9 @@ class PickPlaceEnv(AEDBaseEnv):
         self.vessel.set_pose(Pose.create_from_pq(p=[x, y, 0.001], q=rotation_z(yaw)))
         self.stage_reached = torch.zeros(self.num_envs, dtype=torch.int32, device=self.device)
         self.vessel_start = self.vessel.pose.p.clone()
-        self.vessel_travel = torch.zeros(self.num_envs, device=self.device)  # farthest from the start so far
+        self.vessel_travel = torch.zeros(
+            self.num_envs, device=self.device
+        )  # farthest from the start so far
 
     # --- evaluation -------------------------------------------------------------------------
     def _in_bowl(self, bowl_key: str) -> torch.Tensor:
@@ -119,7 +128,9 @@ class PickPlaceEnv(AEDBaseEnv):
     def _settled(self) -> torch.Tensor:
         still = torch.linalg.norm(self.vessel.linear_velocity, dim=1) < AT_REST_SPEED
         still &= torch.linalg.norm(self.vessel.angular_velocity, dim=1) < AT_REST_SPIN
-        upright = self.vessel.pose.to_transformation_matrix()[:, 2, 2] > np.cos(np.deg2rad(UPRIGHT_TILT))
+        upright = self.vessel.pose.to_transformation_matrix()[:, 2, 2] > np.cos(
+            np.deg2rad(UPRIGHT_TILT)
+        )
         return still & upright
 
     def evaluate(self) -> dict[str, torch.Tensor]:
@@ -138,7 +149,11 @@ class PickPlaceEnv(AEDBaseEnv):
         }
 
     def state_entities(self) -> dict:
-        return {"vessel": self.vessel, "target_bowl": self.target_bowl, "distractor_bowl": self.distractor_bowl}
+        return {
+            "vessel": self.vessel,
+            "target_bowl": self.target_bowl,
+            "distractor_bowl": self.distractor_bowl,
+        }
 
     def error_outcome(self, kind: str) -> str:
         super().error_outcome(kind)
@@ -150,11 +165,21 @@ class PickPlaceEnv(AEDBaseEnv):
             travel = float(self.vessel_travel[0])
             return "" if travel < UNTOUCHED else f"the mug moved by {travel * 100:.1f} cm"
         if kind == "wrong_bowl":
-            return "" if bool(self._in_bowl("distractor_bowl")[0]) else "the mug is not settled in the distractor bowl"
-        for bowl, key in ((self.target_bowl, "target_bowl"), (self.distractor_bowl, "distractor_bowl")):
+            return (
+                ""
+                if bool(self._in_bowl("distractor_bowl")[0])
+                else "the mug is not settled in the distractor bowl"
+            )
+        for bowl, key in (
+            (self.target_bowl, "target_bowl"),
+            (self.distractor_bowl, "distractor_bowl"),
+        ):
             distance = float(np.linalg.norm(mug[:2] - bowl.pose.p[0, :2].cpu().numpy()))
             if distance < self.env_spec.objects[key].size[0] / 2:
-                return f"the mug is {distance * 100:.1f} cm from the centre of the {key.replace('_', ' ')}"
+                return (
+                    f"the mug is {distance * 100:.1f} cm from the centre of the "
+                    f"{key.replace('_', ' ')}"
+                )
         return ""
 
     # --- expert -----------------------------------------------------------------------------
@@ -166,10 +191,16 @@ class PickPlaceEnv(AEDBaseEnv):
         hover = grasp + np.array([0.0, 0.0, expert.rng.uniform(0.08, 0.14)])
 
         expert.move_to(hover + expert.jitter(0.02))
-        if kind == "no_grasp":  # move aside, then come down beside the mug, both fingers clear of it
+        if (
+            kind == "no_grasp"
+        ):  # move aside, then come down beside the mug, both fingers clear of it
             expert.mark_error()
-            side = self._clear_side(mug, diameter / 2 + FINGER_REACH + expert.error_rng.uniform(0.015, 0.025))
-            expert.move_to(np.array([grasp[0], grasp[1] + side, expert.tcp[2]]), speed=expert.speed * 0.6)
+            side = self._clear_side(
+                mug, diameter / 2 + FINGER_REACH + expert.error_rng.uniform(0.015, 0.025)
+            )
+            expert.move_to(
+                np.array([grasp[0], grasp[1] + side, expert.tcp[2]]), speed=expert.speed * 0.6
+            )
             expert.move_to(grasp + np.array([0.0, side, 0.0]), speed=expert.speed * 0.6)
         else:
             expert.move_to(grasp, speed=expert.speed * 0.6)
@@ -178,7 +209,12 @@ class PickPlaceEnv(AEDBaseEnv):
         expert.move_to(expert.tcp + np.array([0.0, 0.0, lift]), speed=expert.speed * 0.7)
 
         bowl_key = "distractor_bowl" if kind == "wrong_bowl" else "target_bowl"
-        bowl = (self.distractor_bowl if bowl_key == "distractor_bowl" else self.target_bowl).pose.p[0].cpu().numpy()
+        bowl = (
+            (self.distractor_bowl if bowl_key == "distractor_bowl" else self.target_bowl)
+            .pose.p[0]
+            .cpu()
+            .numpy()
+        )
         bowl_height = self.env_spec.objects[bowl_key].size[1]
         release = np.array([bowl[0], bowl[1], bowl_height + height * 0.55 + 0.02])
         if kind == "wrong_bowl":
@@ -200,8 +236,14 @@ class PickPlaceEnv(AEDBaseEnv):
         """`offset` toward the side (+-y) of the mug where the open gripper is farthest from the
         bowls, within the arm's easy reach (|y| < REACH_Y) where that side is."""
         bowls = [
-            (self.target_bowl.pose.p[0, :2].cpu().numpy(), self.env_spec.objects["target_bowl"].size[0] / 2),
-            (self.distractor_bowl.pose.p[0, :2].cpu().numpy(), self.env_spec.objects["distractor_bowl"].size[0] / 2),
+            (
+                self.target_bowl.pose.p[0, :2].cpu().numpy(),
+                self.env_spec.objects["target_bowl"].size[0] / 2,
+            ),
+            (
+                self.distractor_bowl.pose.p[0, :2].cpu().numpy(),
+                self.env_spec.objects["distractor_bowl"].size[0] / 2,
+            ),
         ]
 
         def clearance(sign: float) -> float:

@@ -106,7 +106,9 @@ class PressButtonEnv(AEDBaseEnv):
         self.button.set_qpos(torch.zeros((self.num_envs, 1)))
         self.place_distractors(rng, DISTRACTOR_REGION, [(x, y, g.footprint + HAND_CLEARANCE)])
         self.pressed = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-        self.deepest = torch.zeros(self.num_envs, device=self.device)  # the deepest press so far (m)
+        self.deepest = torch.zeros(
+            self.num_envs, device=self.device
+        )  # the deepest press so far (m)
 
     # --- evaluation -------------------------------------------------------------------------
     def press_depth(self) -> torch.Tensor:
@@ -163,6 +165,7 @@ class PressButtonEnv(AEDBaseEnv):
 
             def stop_before(waypoint: np.ndarray) -> bool:  # the cap is part of the way down
                 return float(self.press_depth()[0]) >= partial
+
         if expert.move_to(press, speed=expert.speed * 0.35, tol=0.003, stop_before=stop_before):
             expert.mark_error()  # the press stops here: the clean expert would go on down
         expert.wait(int(expert.rng.integers(2, 6)))
@@ -184,7 +187,8 @@ class PressButtonEnv(AEDBaseEnv):
     def _beside(
         centre: np.ndarray, top: np.ndarray, g: ButtonGeometry, expert: ScriptedExpert
     ) -> np.ndarray:
-        """A spot next to the button, a few cm off its footprint, toward the robot or away from it."""
+        """A spot next to the button, a few cm off its footprint, toward the robot or away from
+        it."""
         far = (
             centre[0] > 0.0
         )  # beyond the button, a low spot is hard to reach: come toward the robot

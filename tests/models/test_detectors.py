@@ -25,9 +25,28 @@ TINY = {
     "svdd_ed": TINY_VISUAL,
     "taskemb_ed": {**TINY_VISUAL, "hidden_dims": (16,)},
     "lstm_ed": {**TINY_VISUAL, "hidden_dim": 16, "head_dim": 8},
-    "dct_ed": {**TINY_VISUAL, "num_heads": 2, "ff_dim": 32, "encoder_layers": 1, "decoder_layers": 2},
-    "probe": {"history_dim": DH, "task_dim": DZ, "hidden_dim": 16, "embed_dim": 8, "triplets_per_rollout": 4},
-    "rnd_oe": {"history_dim": DH, "hidden_dim": 16, "out_dim": 8, "time_bin": 2, "max_steps": 12, "baseline_steps": 3},
+    "dct_ed": {
+        **TINY_VISUAL,
+        "num_heads": 2,
+        "ff_dim": 32,
+        "encoder_layers": 1,
+        "decoder_layers": 2,
+    },
+    "probe": {
+        "history_dim": DH,
+        "task_dim": DZ,
+        "hidden_dim": 16,
+        "embed_dim": 8,
+        "triplets_per_rollout": 4,
+    },
+    "rnd_oe": {
+        "history_dim": DH,
+        "hidden_dim": 16,
+        "out_dim": 8,
+        "time_bin": 2,
+        "max_steps": 12,
+        "baseline_steps": 3,
+    },
 }
 
 
@@ -55,9 +74,18 @@ def make_batch(seed: int = 0) -> tuple[dict, tuple[torch.Tensor, torch.Tensor]]:
     task = torch.randn(1, 1, DZ, generator=g).expand(b, t, DZ).clone()
     demo_lengths = torch.tensor([5, 4])
     demo_mask = torch.arange(5)[None] < demo_lengths[:, None]
-    demos = {"frames": torch.rand(2, 5, 4, H, W, generator=g) * 0.5 * demo_mask[..., None, None, None],
-             "mask": demo_mask, "lengths": demo_lengths}  # fmt: skip
-    rollouts = {"frames": frames, "mask": mask, "lengths": lengths, "labels": labels, "is_failure": is_failure}
+    demos = {
+        "frames": torch.rand(2, 5, 4, H, W, generator=g) * 0.5 * demo_mask[..., None, None, None],
+        "mask": demo_mask,
+        "lengths": demo_lengths,
+    }
+    rollouts = {
+        "frames": frames,
+        "mask": mask,
+        "lengths": lengths,
+        "labels": labels,
+        "is_failure": is_failure,
+    }
     return {"demos": demos, "rollouts": rollouts}, (history, task)
 
 
@@ -95,7 +123,8 @@ def test_offline_scores_equal_online_steps(name):
     for i, length in enumerate(rollouts["lengths"].tolist()):
         detector.reset(demos)
         online = [
-            detector.step(rollouts["frames"][i, t], (history[i, t], task[i, t])) for t in range(length)
+            detector.step(rollouts["frames"][i, t], (history[i, t], task[i, t]))
+            for t in range(length)
         ]
         torch.testing.assert_close(torch.tensor(online), offline[i, :length], atol=1e-5, rtol=0)
 
@@ -109,8 +138,10 @@ def test_checkpoint_round_trip_and_refusal(name, tmp_path):
     loaded = load_detector(path)
     assert type(loaded) is type(detector) and loaded.config == detector.config
     assert loaded.checkpoint_extra["task"] == "PressButton"
-    torch.testing.assert_close(loaded.score(batch["rollouts"], batch["demos"], features),
-                               detector.score(batch["rollouts"], batch["demos"], features))  # fmt: skip
+    torch.testing.assert_close(
+        loaded.score(batch["rollouts"], batch["demos"], features),
+        detector.score(batch["rollouts"], batch["demos"], features),
+    )
     other = "probe" if name != "probe" else "lstm_ed"
     with pytest.raises(CheckpointError, match=f"{name}.*expected '{other}'"):
         load_detector(path, name=other)
@@ -127,7 +158,10 @@ def test_registry_errors_and_profiles():
         DETECTORS.preset("probe", "huge")
     assert set(PAPER_PARAMETERS) == set(DETECTORS) - {"rnd_oe"}
     for name in DETECTORS:
-        assert DETECTORS.preset(name, "mini") is not None and DETECTORS.preset(name, "paper") is not None
+        assert (
+            DETECTORS.preset(name, "mini") is not None
+            and DETECTORS.preset(name, "paper") is not None
+        )
 
 
 def test_interface_attributes():
@@ -156,7 +190,9 @@ def test_step_before_reset_and_missing_inputs_fail_clearly():
 
 def test_probe_switches():
     batch, features = make_batch()
-    naive = make_detector("probe", **{**TINY["probe"], "use_pattern_extractor": False, "lambda_tem": 0.0})
+    naive = make_detector(
+        "probe", **{**TINY["probe"], "use_pattern_extractor": False, "lambda_tem": 0.0}
+    )
     _, parts = naive.loss(batch, features)
     assert set(parts) == {"cls", "pat"}
     only_tem = make_detector("probe", **{**TINY["probe"], "lambda_cls": 0.0, "lambda_pat": 0.0})
@@ -176,11 +212,24 @@ def test_svdd_variance_floor_penalises_a_collapsed_embedding():
     batch, _ = make_batch()
     detector = tiny("svdd_ed").eval()
     _, spread = detector.loss(batch)
-    same = {**batch, "rollouts": {**batch["rollouts"], "frames": batch["rollouts"]["frames"][:1, :1].expand_as(batch["rollouts"]["frames"]).clone()}}
+    same = {
+        **batch,
+        "rollouts": {
+            **batch["rollouts"],
+            "frames": batch["rollouts"]["frames"][:1, :1]
+            .expand_as(batch["rollouts"]["frames"])
+            .clone(),
+        },
+    }
     _, collapsed = detector.loss(same)  # every frame the same: zero variance, the floor's maximum
-    assert collapsed["variance_floor"] > 0.95 and spread["variance_floor"] < collapsed["variance_floor"]
-    assert "variance_floor" not in make_detector("svdd_ed", **TINY["svdd_ed"], variance_weight=0.0).loss(batch)[1]
-
+    assert (
+        collapsed["variance_floor"] > 0.95
+        and spread["variance_floor"] < collapsed["variance_floor"]
+    )
+    assert (
+        "variance_floor"
+        not in make_detector("svdd_ed", **TINY["svdd_ed"], variance_weight=0.0).loss(batch)[1]
+    )
 
 
 def test_svdd_aligned_centres_follow_the_demonstrations_in_time():
@@ -194,24 +243,37 @@ def test_svdd_aligned_centres_follow_the_demonstrations_in_time():
         centres = detector.centres(demos)
         assert centres.shape == (5, z.shape[-1])
         torch.testing.assert_close(centres[2], (z[0, 2] + z[1, 2]) / 2)
-        torch.testing.assert_close(centres[4], (z[0, 4] + z[1, 3]) / 2)  # the shorter one is held at its end
-        # subsampled demonstrations (training): each contributes its latest kept frame at or before t
-        kept = {**demos, "source": torch.tensor([[0, 2, 4, 0, 0], [0, 3, 0, 0, 0]]),
-                "mask": torch.tensor([[True, True, True, False, False], [True, True, False, False, False]])}  # fmt: skip
+        torch.testing.assert_close(
+            centres[4], (z[0, 4] + z[1, 3]) / 2
+        )  # the shorter one is held at its end
+        # subsampled demonstrations (training): each contributes its latest kept frame at or
+        # before t
+        kept = {
+            **demos,
+            "source": torch.tensor([[0, 2, 4, 0, 0], [0, 3, 0, 0, 0]]),
+            "mask": torch.tensor(
+                [[True, True, True, False, False], [True, True, False, False, False]]
+            ),
+        }
         sub = detector.centres(kept)
         zk = encode_frames(detector.encoder, demos["frames"], kept["mask"])
         torch.testing.assert_close(sub[1], (zk[0, 0] + zk[1, 0]) / 2)
         torch.testing.assert_close(sub[3], (zk[0, 1] + zk[1, 1]) / 2)
         torch.testing.assert_close(sub[4], (zk[0, 2] + zk[1, 1]) / 2)
-        # the distance takes the nearest centre within `window` steps (rollouts run at their own pace)
+        # the distance takes the nearest centre within `window` steps (rollouts run at their
+        # own pace)
         step2 = torch.tensor([2])
         assert float(detector.distance(centres[3][None], step2, centres)) == 0.0  # tiny window: 10
         exact = make_detector("svdd_ed", **TINY["svdd_ed"], window=0)
         assert float(exact.distance(centres[3][None], step2, centres)) > 0.0
-        torch.testing.assert_close(exact.distance(centres[4][None], torch.tensor([9]), centres), torch.zeros(1))  # past the end: the last
+        torch.testing.assert_close(
+            exact.distance(centres[4][None], torch.tensor([9]), centres), torch.zeros(1)
+        )  # past the end: the last
         single = make_detector("svdd_ed", **TINY["svdd_ed"], centre="all")
         single.load_state_dict(detector.state_dict())
-        torch.testing.assert_close(single.eval().centres(demos), z[demos["mask"]].mean(0, keepdim=True))
+        torch.testing.assert_close(
+            single.eval().centres(demos), z[demos["mask"]].mean(0, keepdim=True)
+        )
     with pytest.raises(ValueError, match="centre='middle'"):
         make_detector("svdd_ed", centre="middle")
     with pytest.raises(ValueError, match="window=-1"):
@@ -225,7 +287,10 @@ def test_detectors_without_memory_score_the_running_max_of_their_frames(name):
     detector = tiny(name).eval()
     per_frame = make_detector(name, **TINY[name], running_max=False).eval()
     per_frame.load_state_dict(detector.state_dict())
-    raw, scores = per_frame.score(rollouts, demos, features), detector.score(rollouts, demos, features)
+    raw, scores = (
+        per_frame.score(rollouts, demos, features),
+        detector.score(rollouts, demos, features),
+    )
     assert not torch.equal(raw, scores)  # the frames' scores are not already sorted
     for i, length in enumerate(rollouts["lengths"].tolist()):
         torch.testing.assert_close(scores[i, :length], torch.cummax(raw[i, :length], 0).values)
@@ -237,7 +302,8 @@ def test_detectors_without_memory_score_the_running_max_of_their_frames(name):
 
 @pytest.fixture(scope="module")
 def collection(tmp_path_factory):
-    """Two environments; per env 3 demos, 3 successes, 3 failures (tests/test_data.py's episodes)."""
+    """Two environments; per env 3 demos, 3 successes, 3 failures (tests/test_data.py's
+    episodes)."""
     from aed_tasks import trajectory
     from tests.test_data import synthetic
 
@@ -258,7 +324,9 @@ def tiny_policy(tmp_path_factory):
     from aed_models.policies import POLICIES, make_policy, save_policy
 
     torch.manual_seed(0)
-    config = POLICIES.preset("naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4))
+    config = POLICIES.preset(
+        "naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)
+    )
     path = tmp_path_factory.mktemp("policy") / "policy.pt"
     save_policy(path, make_policy("naive_dc", config).eval())
     return path
@@ -268,10 +336,28 @@ def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
     from aed_models.train.detector import TrainDetectorConfig, train_detector
 
     config = make_detector("lstm_ed", **TINY["lstm_ed"]).config
-    cfg = TrainDetectorConfig.from_preset(detector="lstm_ed", data=collection, out=tmp_path, epochs=1, num_envs=1, max_frames=6, progress=False)
+    cfg = TrainDetectorConfig.from_preset(
+        detector="lstm_ed",
+        data=collection,
+        out=tmp_path,
+        epochs=1,
+        num_envs=1,
+        max_frames=6,
+        progress=False,
+    )
     first = load_detector(train_detector(cfg, config))
-    assert first.checkpoint_extra["task"] == "PressButton" and len(first.checkpoint_extra["log"]) == 1
-    cfg2 = TrainDetectorConfig.from_preset(detector="lstm_ed", data=collection, out=tmp_path, epochs=2, num_envs=1, max_frames=6, progress=False)
+    assert (
+        first.checkpoint_extra["task"] == "PressButton" and len(first.checkpoint_extra["log"]) == 1
+    )
+    cfg2 = TrainDetectorConfig.from_preset(
+        detector="lstm_ed",
+        data=collection,
+        out=tmp_path,
+        epochs=2,
+        num_envs=1,
+        max_frames=6,
+        progress=False,
+    )
     second = load_detector(train_detector(cfg2, config))
     log = second.checkpoint_extra["log"]
     assert [e["epoch"] for e in log] == [1, 2] and log[0] == first.checkpoint_extra["log"][0]
@@ -279,20 +365,46 @@ def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
         TrainDetectorConfig.from_preset(detector="probe")
     other = make_detector("lstm_ed", **{**TINY["lstm_ed"], "head_dim": 9}).config
     with pytest.raises(ValueError, match="another lstm_ed config"):
-        train_detector(TrainDetectorConfig.from_preset(detector="lstm_ed", data=collection, out=tmp_path, epochs=3, num_envs=1,
-                                           max_frames=6, progress=False), other)  # fmt: skip
+        train_detector(
+            TrainDetectorConfig.from_preset(
+                detector="lstm_ed",
+                data=collection,
+                out=tmp_path,
+                epochs=3,
+                num_envs=1,
+                max_frames=6,
+                progress=False,
+            ),
+            other,
+        )
 
 
 def test_train_detector_config_profiles_and_composition(collection):
     from aed_models.data import Composition, load_episodes
     from aed_models.train.detector import TrainDetectorConfig, build_dataset
 
-    mini, paper = TrainDetectorConfig.from_preset(detector="lstm_ed"), TrainDetectorConfig.from_preset(detector="lstm_ed", profile="paper")
+    mini, paper = (
+        TrainDetectorConfig.from_preset(detector="lstm_ed"),
+        TrainDetectorConfig.from_preset(detector="lstm_ed", profile="paper"),
+    )
     assert (mini.lr, mini.weight_decay, paper.lr, paper.weight_decay) == (3e-4, 0.0, 1e-4, 1e-2)
-    assert (mini.composition, mini.epochs, mini.num_envs, paper.composition) == ((3, 4, 4), 30, 0, (5, 10, 10))
+    assert (mini.composition, mini.epochs, mini.num_envs, paper.composition) == (
+        (3, 4, 4),
+        30,
+        0,
+        (5, 10, 10),
+    )
     single = TrainDetectorConfig.from_preset(detector="taskemb_ed")
-    assert (single.max_frames, single.epochs, mini.max_frames) == (8, 150, 0)  # temporal detectors: every frame
-    assert TrainDetectorConfig.from_preset(detector="probe", policy="dct").composition == (5, 10, 10)  # cached features: the paper's
+    assert (single.max_frames, single.epochs, mini.max_frames) == (
+        8,
+        150,
+        0,
+    )  # temporal detectors: every frame
+    assert TrainDetectorConfig.from_preset(detector="probe", policy="dct").composition == (
+        5,
+        10,
+        10,
+    )  # cached features: the paper's
     demo = TrainDetectorConfig.from_preset(detector="svdd_ed", profile="demo")
     assert (demo.epochs, demo.composition, demo.max_frames) == (4, (3, 4, 3), 8)
     episodes = load_episodes(collection)
@@ -308,8 +420,14 @@ def test_probe_trains_on_cached_features(collection, tiny_policy, tmp_path):
     from aed_models.train.detector import TrainDetectorConfig, train_detector
 
     config = make_detector("probe", **TINY["probe"]).config  # feature sizes come from the policy
-    cfg = TrainDetectorConfig.from_preset(detector="probe", policy=str(tiny_policy), data=collection, out=tmp_path / "probe",
-                              epochs=1, progress=False)  # fmt: skip
+    cfg = TrainDetectorConfig.from_preset(
+        detector="probe",
+        policy=str(tiny_policy),
+        data=collection,
+        out=tmp_path / "probe",
+        epochs=1,
+        progress=False,
+    )
     detector = load_detector(train_detector(cfg, config))
     extra = detector.checkpoint_extra
     assert extra["policy_name"] == "naive_dc" and extra["policy_sha256"] == file_sha256(tiny_policy)
@@ -358,14 +476,21 @@ def test_feature_iterations_follow_the_frame_iterations(collection, tiny_policy,
     episodes = load_episodes(collection)
     cache = FeatureCache(tmp_path, file_sha256(tiny_policy))
     cache.build(episodes, load_policy(tiny_policy))
-    feats = FeatureIterations(episodes, cache, "detector", augment=RolloutAugment(), max_frames=10, seed=5)
-    frames = EnvironmentIterations(episodes, "detector", augment=RolloutAugment(), max_frames=10, seed=5)
+    feats = FeatureIterations(
+        episodes, cache, "detector", augment=RolloutAugment(), max_frames=10, seed=5
+    )
+    frames = EnvironmentIterations(
+        episodes, "detector", augment=RolloutAugment(), max_frames=10, seed=5
+    )
     for item in [(0, 0), (3, 1)]:
         a, b = feats[item], frames[item]
         for key in ("lengths", "labels", "mask", "is_failure"):
             assert torch.equal(a["rollouts"][key], b["rollouts"][key]), key
         history, task = a["features"]
-        assert history.shape[:2] == a["rollouts"]["mask"].shape and (history[~a["rollouts"]["mask"]] == 0).all()
+        assert (
+            history.shape[:2] == a["rollouts"]["mask"].shape
+            and (history[~a["rollouts"]["mask"]] == 0).all()
+        )
 
 
 def test_rnd_oe_calibrates_errors_by_the_training_successes_at_each_step():
@@ -396,7 +521,9 @@ def test_rnd_oe_scores_the_running_max_of_errors_over_the_rollouts_own_start():
     rnd.loss(batch, features)  # a trained time calibration, so that online meets it too
     rnd.eval()
     rollouts, k = batch["rollouts"], rnd.config.baseline_steps
-    calibrated = rnd.calibrated(features[0], torch.arange(rollouts["mask"].shape[1]).expand_as(rollouts["mask"]))
+    calibrated = rnd.calibrated(
+        features[0], torch.arange(rollouts["mask"].shape[1]).expand_as(rollouts["mask"])
+    )
     scores = rnd.score(rollouts, batch["demos"], features)
     for i, length in enumerate(rollouts["lengths"].tolist()):
         c = calibrated[i, :length].tolist()
@@ -435,10 +562,15 @@ def test_aed_models_lists_paper_counts_and_explains_each_difference():
         if row.paper:
             assert abs(row.parameters - row.paper) / row.paper < 0.2, row
             off = abs(row.parameters - row.paper) / row.paper > 0.001
-            assert bool(row.note) or not off, f"{row.name}: {row.parameters} vs the paper's {row.paper} unexplained"
+            assert bool(row.note) or not off, (
+                f"{row.name}: {row.parameters} vs the paper's {row.paper} unexplained"
+            )
     assert {r.name for r in rows if r.family == "detector"} == set(DETECTORS)
     text = format_rows(rows, "paper")
-    assert "| detector | probe | dct features | 0.69M | 0.65M [2] |" in text and "\n[2] probe: " in text
+    assert (
+        "| detector | probe | dct features | 0.69M | 0.65M [2] |" in text
+        and "\n[2] probe: " in text
+    )
 
 
 @pytest.mark.parametrize("num_layers", [1, 2])
@@ -465,7 +597,9 @@ def test_detector_benchmark_runs_every_mini_detector():
     cfg = bench.Config(train_iterations=1, rollout_frames=2)
     batch, _ = bench.synthetic_batch(1, 1)
     for name in DETECTORS:
-        overrides = {"history_dim": cfg.history_dim, "task_dim": cfg.task_dim} if name == "probe" else {}
+        overrides = (
+            {"history_dim": cfg.history_dim, "task_dim": cfg.task_dim} if name == "probe" else {}
+        )
         overrides = {"history_dim": cfg.history_dim} if name == "rnd_oe" else overrides
         detector = make_detector(name, DETECTORS.preset(name, "mini"), **overrides)
         t10, t200 = bench.online_latency(detector, batch["demos"], cfg)

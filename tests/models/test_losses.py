@@ -33,10 +33,13 @@ def test_masked_bce_ignores_padding():
 def test_temporal_triplet_loss_matches_hand_computation():
     # one rollout of 10 frames; 1-d embeddings equal to the frame's value below
     emb = torch.tensor([0.0, 0.5, 1.0, 0.0, 0.0, 0.0, 3.0, 0.0, 0.0, 0.0])[None, :, None]
-    triplets = Triplets(torch.tensor([0, 0]), torch.tensor([0, 2]), torch.tensor([1, 0]), torch.tensor([6, 9]))
+    triplets = Triplets(
+        torch.tensor([0, 0]), torch.tensor([0, 2]), torch.tensor([1, 0]), torch.tensor([6, 9])
+    )
     lengths = torch.tensor([10])
     loss = temporal_triplet_loss(emb, triplets, lengths, margin=1.0, alpha=0.5, clip=0.5)
-    # triplet 1: d_ap = 0.1/0.5 = 0.2, d_an = min(0.6, 0.5)/0.5 = 1 -> m_t = 1 (1 - 0.5 (0.2 - 1)) = 1.4
+    # triplet 1: d_ap = 0.1/0.5 = 0.2, d_an = min(0.6, 0.5)/0.5 = 1
+    #   -> m_t = 1 (1 - 0.5 (0.2 - 1)) = 1.4
     #   |0 - 0.5| - |0 - 3| + 1.4 = -1.1 -> 0
     # triplet 2: d_ap = 0.2/0.5 = 0.4, d_an = min(0.7, 0.5)/0.5 = 1 -> m_t = 1.3
     #   |1 - 0| - |1 - 0| + 1.3 = 1.3
@@ -52,10 +55,14 @@ def test_temporal_triplet_loss_without_triplets_is_zero_with_grad():
 
 
 def test_sampled_triplets_respect_labels_and_failures():
-    labels = torch.tensor([[0, 0, 0, 0, 0, 0], [0, 0, 0, 1, 1, 0], [0, 0, 0, 0, 0, 0]], dtype=torch.float32)
+    labels = torch.tensor(
+        [[0, 0, 0, 0, 0, 0], [0, 0, 0, 1, 1, 0], [0, 0, 0, 0, 0, 0]], dtype=torch.float32
+    )
     mask = torch.tensor([[True] * 6, [True] * 5 + [False], [True] * 6])
     is_failure = torch.tensor([False, True, True])  # rollout 2 "failed" but kept no error frame
-    t = sample_triplets(labels, mask, is_failure, per_rollout=50, generator=torch.Generator().manual_seed(0))
+    t = sample_triplets(
+        labels, mask, is_failure, per_rollout=50, generator=torch.Generator().manual_seed(0)
+    )
     assert len(t.rollout) > 0 and (t.rollout == 1).all()
     lab = labels[1]
     assert (lab[t.anchor] == lab[t.positive]).all() and (lab[t.anchor] != lab[t.negative]).all()

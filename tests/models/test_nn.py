@@ -59,23 +59,37 @@ def test_cached_decoder_equals_the_causal_batch():
     kv = layer.cross_attn.project_kv(memory)
     batch = layer(x, kv, None)
     cache = KVCache()
-    steps = torch.cat([layer(x[:, t : t + 1], kv, None, cache) for t in range(70)], dim=1)  # grows past 64
+    steps = torch.cat(
+        [layer(x[:, t : t + 1], kv, None, cache) for t in range(70)], dim=1
+    )  # grows past 64
     assert torch.allclose(batch, steps, atol=1e-5)
 
 
 def test_checkpoint_round_trip(tmp_path):
     state = {"w": torch.arange(4.0)}
-    sha = save_checkpoint(tmp_path / "a.pt", family="policy", name="dct", config={"x": [1, 2], "y": {"z": None}},
-                          state_dict=state, extra={"epoch": 3})  # fmt: skip
+    sha = save_checkpoint(
+        tmp_path / "a.pt",
+        family="policy",
+        name="dct",
+        config={"x": [1, 2], "y": {"z": None}},
+        state_dict=state,
+        extra={"epoch": 3},
+    )
     ckpt = load_checkpoint(tmp_path / "a.pt", family="policy", name="dct")
-    assert ckpt.sha256 == sha and ckpt.config == {"x": [1, 2], "y": {"z": None}} and ckpt.extra == {"epoch": 3}
+    assert (
+        ckpt.sha256 == sha
+        and ckpt.config == {"x": [1, 2], "y": {"z": None}}
+        and ckpt.extra == {"epoch": 3}
+    )
     assert torch.equal(ckpt.state_dict["w"], state["w"])
     assert [p.name for p in tmp_path.iterdir()] == ["a.pt"]  # no temporary file left
 
 
 def test_checkpoint_errors_name_path_and_problem(tmp_path):
     good = tmp_path / "good.pt"
-    save_checkpoint(good, family="detector", name="probe", config={}, state_dict={"w": torch.ones(1000)})
+    save_checkpoint(
+        good, family="detector", name="probe", config={}, state_dict={"w": torch.ones(1000)}
+    )
     with pytest.raises(CheckpointError, match="missing.pt: no such checkpoint"):
         load_checkpoint(tmp_path / "missing.pt", family="policy")
     truncated = tmp_path / "truncated.pt"
@@ -90,8 +104,12 @@ def test_checkpoint_errors_name_path_and_problem(tmp_path):
     torch.save({"model": {"w": torch.ones(2)}}, foreign)
     with pytest.raises(CheckpointError, match="foreign.pt: not an AED checkpoint"):
         load_checkpoint(foreign, family="detector")
-    with pytest.raises(CheckpointError, match="good.pt: a 'detector' checkpoint, expected a 'policy' one"):
+    with pytest.raises(
+        CheckpointError, match="good.pt: a 'detector' checkpoint, expected a 'policy' one"
+    ):
         load_checkpoint(good, family="policy")
-    with pytest.raises(CheckpointError, match="good.pt: a detector checkpoint of 'probe', expected 'lstm_ed'"):
+    with pytest.raises(
+        CheckpointError, match="good.pt: a detector checkpoint of 'probe', expected 'lstm_ed'"
+    ):
         load_checkpoint(good, family="detector", name="lstm_ed")
     assert issubclass(CheckpointError, ValueError)

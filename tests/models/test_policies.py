@@ -42,10 +42,14 @@ def sequences(n: int, lengths: list[int], seed: int) -> dict[str, torch.Tensor]:
     frames = torch.rand(n, longest, 4, H, W, generator=g)
     mask = torch.arange(longest)[None] < torch.tensor(lengths)[:, None]
     frames[~mask] = 0.0
-    return {"frames": frames, "mask": mask, "lengths": torch.tensor(lengths),
-            "actions": torch.randn(n, longest, 4, generator=g).clamp(-1, 1),
-            "proprio": torch.rand(n, longest, 5, generator=g) * mask[..., None],
-            "subgoal": torch.rand(n, longest, 3, generator=g) * mask[..., None]}  # fmt: skip
+    return {
+        "frames": frames,
+        "mask": mask,
+        "lengths": torch.tensor(lengths),
+        "actions": torch.randn(n, longest, 4, generator=g).clamp(-1, 1),
+        "proprio": torch.rand(n, longest, 5, generator=g) * mask[..., None],
+        "subgoal": torch.rand(n, longest, 3, generator=g) * mask[..., None],
+    }
 
 
 @pytest.fixture
@@ -59,12 +63,24 @@ def test_forward_backward_shapes_and_input_unchanged(name, batch):
     before = {k: {kk: vv.clone() for kk, vv in v.items()} for k, v in batch.items()}
     out = policy(batch["rollouts"], batch["demos"])
     assert out["pos"].shape == (2, 12, 3) and out["grip"].shape == (2, 12, 1)
-    assert out["history"].shape == (2, 12, policy.history_dim) and out["task"].shape == (2, 12, policy.task_dim)
-    assert policy.history_dim + policy.task_dim + 3 == policy.actor.body[0].in_features  # + the predicted subgoal offset
+    assert out["history"].shape == (2, 12, policy.history_dim) and out["task"].shape == (
+        2,
+        12,
+        policy.task_dim,
+    )
+    assert (
+        policy.history_dim + policy.task_dim + 3 == policy.actor.body[0].in_features
+    )  # + the predicted subgoal offset
     assert out["subgoal"].shape == (2, 12, 3)
     loss, parts = policy.loss(batch)
     loss.backward()
-    assert np.isfinite(parts["loss"]) and {"pos_mse", "grip_loss", "grip_acc", "inverse_dynamics", "subgoal_mse"} <= set(parts)
+    assert np.isfinite(parts["loss"]) and {
+        "pos_mse",
+        "grip_loss",
+        "grip_acc",
+        "inverse_dynamics",
+        "subgoal_mse",
+    } <= set(parts)
     assert all(p.grad is not None for p in policy.visual.parameters())
     for key, group in batch.items():
         for k, v in group.items():
@@ -102,7 +118,9 @@ def test_online_features_equal_batched(name, subgoal_weight, batch):
     policy.eval()
     rollout, proprio = batch["rollouts"]["frames"][:1], batch["rollouts"]["proprio"][:1]
     with torch.no_grad():
-        feats = policy.features(rollout, torch.ones(1, 12, dtype=torch.bool), batch["demos"], proprio=proprio)
+        feats = policy.features(
+            rollout, torch.ones(1, 12, dtype=torch.bool), batch["demos"], proprio=proprio
+        )
         out = policy({"frames": rollout, "proprio": proprio}, batch["demos"])
     expected = policy.to_action(out["pos"], out["grip"])[0]
     policy.reset(batch["demos"])
@@ -125,7 +143,13 @@ def test_act_reads_maniskill_observations():
     proprio = torch.cat([tcp_pose[0, :3], qpos[0, -2:]])
     demos = sequences(2, [5, 4], seed=0)
     policy.reset(demos)
-    a = policy.act({"sensor_data": {"front": {"rgb": rgb, "depth": depth}}, "extra": {"tcp_pose": tcp_pose}, "agent": {"qpos": qpos}})
+    a = policy.act(
+        {
+            "sensor_data": {"front": {"rgb": rgb, "depth": depth}},
+            "extra": {"tcp_pose": tcp_pose},
+            "agent": {"qpos": qpos},
+        }
+    )
     policy.reset(demos)
     assert np.allclose(a, policy.act(frame, proprio=proprio), atol=1e-5)
     with pytest.raises(ValueError, match="sensor_data/front"):
@@ -152,15 +176,22 @@ def test_padded_demos_give_the_same_task_embedding(name):
         args = rollout["frames"], rollout["mask"]
         padded = policy.features(*args, demos, proprio=rollout["proprio"]).task
         # the same demos padded further, with junk in the padding
-        longer = {"frames": torch.cat([demos["frames"], torch.rand(3, 4, 4, H, W)], dim=1),
-                  "mask": torch.cat([demos["mask"], torch.zeros(3, 4, dtype=torch.bool)], dim=1),
-                  "proprio": torch.cat([demos["proprio"], torch.rand(3, 4, 5)], dim=1)}  # fmt: skip
+        longer = {
+            "frames": torch.cat([demos["frames"], torch.rand(3, 4, 4, H, W)], dim=1),
+            "mask": torch.cat([demos["mask"], torch.zeros(3, 4, dtype=torch.bool)], dim=1),
+            "proprio": torch.cat([demos["proprio"], torch.rand(3, 4, 5)], dim=1),
+        }
         longer["frames"][:, :9][~demos["mask"]] = torch.rand(int((~demos["mask"]).sum()), 4, H, W)
         longer["proprio"][:, :9][~demos["mask"]] = torch.rand(int((~demos["mask"]).sum()), 5)
-        assert torch.allclose(policy.features(*args, longer, proprio=rollout["proprio"]).task, padded, atol=1e-5)
+        assert torch.allclose(
+            policy.features(*args, longer, proprio=rollout["proprio"]).task, padded, atol=1e-5
+        )
         if name == "naive_dc":  # the mean over demos of per-demo embeddings: check each unpadded
             for i, n in enumerate([9, 5, 7]):
-                one = {"frames": demos["frames"][i : i + 1, :n], "proprio": demos["proprio"][i : i + 1, :n]}
+                one = {
+                    "frames": demos["frames"][i : i + 1, :n],
+                    "proprio": demos["proprio"][i : i + 1, :n],
+                }
                 one_by_one.append(policy.features(*args, one, proprio=rollout["proprio"]).task)
             assert torch.allclose(torch.stack(one_by_one).mean(0), padded, atol=1e-5)
 
@@ -181,13 +212,23 @@ def test_save_load_round_trip(name, batch, tmp_path):
 
 def test_wrong_checkpoints_and_names_are_clear_errors(tmp_path):
     save_policy(tmp_path / "dct.pt", tiny_policy("dct"))
-    with pytest.raises(CheckpointError, match="dct.pt: a policy checkpoint of 'dct', expected 'scan'"):
+    with pytest.raises(
+        CheckpointError, match="dct.pt: a policy checkpoint of 'dct', expected 'scan'"
+    ):
         load_policy(tmp_path / "dct.pt", name="scan")
     save_checkpoint(tmp_path / "det.pt", family="detector", name="probe", config={}, state_dict={})
-    with pytest.raises(CheckpointError, match="det.pt: a 'detector' checkpoint, expected a 'policy' one"):
+    with pytest.raises(
+        CheckpointError, match="det.pt: a 'detector' checkpoint, expected a 'policy' one"
+    ):
         load_policy(tmp_path / "det.pt")
     config = tiny_config("dct").to_dict()
-    save_checkpoint(tmp_path / "bad.pt", family="policy", name="dct", config=config, state_dict={"w": torch.ones(1)})
+    save_checkpoint(
+        tmp_path / "bad.pt",
+        family="policy",
+        name="dct",
+        config=config,
+        state_dict={"w": torch.ones(1)},
+    )
     with pytest.raises(CheckpointError, match="bad.pt: does not fit policy 'dct'"):
         load_policy(tmp_path / "bad.pt")
     with pytest.raises(ValueError, match="unknown policy 'bc'; known: naive_dc, dct, scan"):
@@ -201,7 +242,9 @@ def test_wrong_checkpoints_and_names_are_clear_errors(tmp_path):
 # --- training on a synthetic collection (no simulation) --------------------------------------
 
 
-def synthetic(role: str, env_index: int, seed: int, steps: int) -> tuple[Episode, trajectory.RecordedSteps]:
+def synthetic(
+    role: str, env_index: int, seed: int, steps: int
+) -> tuple[Episode, trajectory.RecordedSteps]:
     """Frame t shows a white bar at a random column b_t * (W - 8); the action is a function of
     b_t: x = 2 b - 1, y = 1 - 2 b, z = 0, gripper open when b > 0.5. A policy that reads its
     frame can learn it."""
@@ -211,20 +254,37 @@ def synthetic(role: str, env_index: int, seed: int, steps: int) -> tuple[Episode
     for t, column in enumerate(np.round(b * (W - 8)).astype(int)):
         rgb[t, :, column : column + 8] = 255
     depth = np.full((steps + 1, H, W, 1), 500 + 10 * env_index, np.int16)
-    actions = np.stack([2 * b - 1, 1 - 2 * b, np.zeros_like(b), np.where(b > 0.5, 1.0, -1.0)], axis=1)[:steps]
+    actions = np.stack(
+        [2 * b - 1, 1 - 2 * b, np.zeros_like(b), np.where(b > 0.5, 1.0, -1.0)], axis=1
+    )[:steps]
     episode = Episode(
-        env_id="AED-PressButton-base", task="PressButton", split="base", env_index=env_index, seed=seed,
-        demonstrator=role == "demo", control_mode="pd_ee_delta_pos", actions=actions.astype(np.float32),
-        success=np.arange(steps) == steps - 1, fail=np.zeros(steps, bool), stage=np.zeros(steps, np.int16),
-        error_label=np.zeros(steps, np.uint8), error_kind=None, error_onset=None,
-    )  # fmt: skip
+        env_id="AED-PressButton-base",
+        task="PressButton",
+        split="base",
+        env_index=env_index,
+        seed=seed,
+        demonstrator=role == "demo",
+        control_mode="pd_ee_delta_pos",
+        actions=actions.astype(np.float32),
+        success=np.arange(steps) == steps - 1,
+        fail=np.zeros(steps, bool),
+        stage=np.zeros(steps, np.int16),
+        error_label=np.zeros(steps, np.uint8),
+        error_kind=None,
+        error_onset=None,
+    )
     steps_rec = trajectory.RecordedSteps(
-        obs={"sensor_data": {"front": {"rgb": rgb, "depth": depth}},
-             "extra": {"tcp_pose": np.tile(np.float32([0.1, 0.0, 0.2, 1, 0, 0, 0]), (steps + 1, 1))},
-             "agent": {"qpos": np.tile(np.float32([0.0] * 7 + [0.04, 0.04]), (steps + 1, 1))}}, env_states=None,
-        terminated=np.zeros(steps, bool), truncated=np.zeros(steps, bool), rewards=np.zeros(steps, np.float32),
+        obs={
+            "sensor_data": {"front": {"rgb": rgb, "depth": depth}},
+            "extra": {"tcp_pose": np.tile(np.float32([0.1, 0.0, 0.2, 1, 0, 0, 0]), (steps + 1, 1))},
+            "agent": {"qpos": np.tile(np.float32([0.0] * 7 + [0.04, 0.04]), (steps + 1, 1))},
+        },
+        env_states=None,
+        terminated=np.zeros(steps, bool),
+        truncated=np.zeros(steps, bool),
+        rewards=np.zeros(steps, np.float32),
         reset_kwargs={"seed": seed, "options": {"env_index": env_index}},
-    )  # fmt: skip
+    )
     return episode, steps_rec
 
 
@@ -237,7 +297,14 @@ def collection(tmp_path_factory) -> Path:
         for role, n in (("demo", 2), ("agent_success", 4)):
             writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
             for k in range(n):
-                writer.add(*synthetic(role, env_index, seed=100 * env_index + 10 * (role == "demo") + k, steps=8 + 2 * k))
+                writer.add(
+                    *synthetic(
+                        role,
+                        env_index,
+                        seed=100 * env_index + 10 * (role == "demo") + k,
+                        steps=8 + 2 * k,
+                    )
+                )
             writer.commit(info, {"env_index": env_index, "group": role})
     return root
 
@@ -260,9 +327,18 @@ def test_training_loss_falls(collection, tmp_path):
 
 
 def test_resume_gives_the_same_weights(collection, tmp_path):
-    whole = train_policy(train_config(collection, tmp_path / "whole", policy="dct", epochs=3, num_envs=2), tiny_config("dct"))
-    train_policy(train_config(collection, tmp_path / "split", policy="dct", epochs=1, num_envs=2), tiny_config("dct"))
-    resumed = train_policy(train_config(collection, tmp_path / "split", policy="dct", epochs=3, num_envs=2), tiny_config("dct"))
+    whole = train_policy(
+        train_config(collection, tmp_path / "whole", policy="dct", epochs=3, num_envs=2),
+        tiny_config("dct"),
+    )
+    train_policy(
+        train_config(collection, tmp_path / "split", policy="dct", epochs=1, num_envs=2),
+        tiny_config("dct"),
+    )
+    resumed = train_policy(
+        train_config(collection, tmp_path / "split", policy="dct", epochs=3, num_envs=2),
+        tiny_config("dct"),
+    )
     a, b = load_policy(whole).state_dict(), load_policy(resumed).state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a)
     log = json.loads((tmp_path / "split" / "train_log.json").read_text())
@@ -270,12 +346,23 @@ def test_resume_gives_the_same_weights(collection, tmp_path):
     other = tiny_config("dct")
     other.ff_dim = 64
     with pytest.raises(ValueError, match="last.pt: trained with another dct config"):
-        train_policy(train_config(collection, tmp_path / "split", policy="dct", epochs=4, num_envs=2), other)
+        train_policy(
+            train_config(collection, tmp_path / "split", policy="dct", epochs=4, num_envs=2), other
+        )
 
 
 def test_paper_profile_runs_one_iteration(collection, tmp_path):
-    cfg = TrainPolicyConfig.from_preset("PressButton", "scan", "paper", data=collection, out=tmp_path / "paper", epochs=1,
-                                        num_envs=1, max_frames=4, progress=False)  # fmt: skip
+    cfg = TrainPolicyConfig.from_preset(
+        "PressButton",
+        "scan",
+        "paper",
+        data=collection,
+        out=tmp_path / "paper",
+        epochs=1,
+        num_envs=1,
+        max_frames=4,
+        progress=False,
+    )
     assert cfg.shift == 0
     config = POLICIES.preset("scan", "paper")
     assert config.visual.arch == "resnet18"
@@ -285,17 +372,28 @@ def test_paper_profile_runs_one_iteration(collection, tmp_path):
 
 def test_train_config_defaults_and_errors():
     mini = TrainPolicyConfig.from_preset(policy="scan")
-    assert mini.max_frames == 0 and mini.num_envs == 0 and mini.out == Path("runs/PressButton/policies/scan")
+    assert (
+        mini.max_frames == 0
+        and mini.num_envs == 0
+        and mini.out == Path("runs/PressButton/policies/scan")
+    )
     assert TrainPolicyConfig.from_preset(policy="naive_dc").max_frames == 8
     assert TrainPolicyConfig.from_preset(task="CloseDrawer", profile="paper").epochs == 160
     paper = TrainPolicyConfig.from_preset(profile="paper")
     assert (paper.lr, paper.weight_decay, paper.shift, paper.max_frames) == (1e-4, 1e-2, 0, 0)
-    assert (mini.rollout_frames, TrainPolicyConfig.from_preset(policy="naive_dc").rollout_frames, paper.rollout_frames) == ("even", "random", "even")
+    assert (
+        mini.rollout_frames,
+        TrainPolicyConfig.from_preset(policy="naive_dc").rollout_frames,
+        paper.rollout_frames,
+    ) == ("even", "random", "even")
     assert POLICIES.preset("scan", "mini").proprio and not POLICIES.preset("scan", "paper").proprio
     assert TrainPolicyConfig.from_preset(composition=[3, 4]).composition == (3, 4)
     assert (mini.composition, mini.epochs, paper.composition) == ((5, 2), 100, (5, 10))
     assert TrainPolicyConfig.from_preset(policy="naive_dc").composition == (5, 8)
-    assert POLICIES.preset("dct", "mini").subgoal_weight > 0 and POLICIES.preset("dct", "paper").subgoal_weight == 0
+    assert (
+        POLICIES.preset("dct", "mini").subgoal_weight > 0
+        and POLICIES.preset("dct", "paper").subgoal_weight == 0
+    )
     with pytest.raises(ValueError, match="composition"):
         TrainPolicyConfig.from_preset(composition=(3, 0))
     with pytest.raises(ValueError, match="demo_frames=1"):
@@ -303,7 +401,9 @@ def test_train_config_defaults_and_errors():
     demo = TrainPolicyConfig.from_preset(policy="dct", profile="demo")
     assert (demo.epochs, demo.composition, demo.shift) == (20, (3, 2), 4)
     assert TrainPolicyConfig.from_preset(policy="naive_dc", profile="demo").composition == (3, 4)
-    assert POLICIES.preset("dct", "demo") == POLICIES.preset("dct", "mini")  # demo trains the mini models
+    assert POLICIES.preset("dct", "demo") == POLICIES.preset(
+        "dct", "mini"
+    )  # demo trains the mini models
     with pytest.raises(ValueError, match="profile='huge'"):
         TrainPolicyConfig.from_preset(profile="huge")
     with pytest.raises(ValueError, match="unknown policy 'bc'"):
@@ -315,7 +415,9 @@ def test_train_config_defaults_and_errors():
 def test_stage_subgoals_are_where_each_stage_ends():
     from aed_models.data import stage_subgoals
 
-    tcp = np.arange(6, dtype=np.float32)[:, None] * np.ones((1, 3), np.float32)  # frame t at t metres
+    tcp = np.arange(6, dtype=np.float32)[:, None] * np.ones(
+        (1, 3), np.float32
+    )  # frame t at t metres
     goals = stage_subgoals(tcp, np.array([0, 0, 1, 1, 2]))  # step 2 enters stage 1, step 4 stage 2
     assert goals[:, 0].tolist() == [3, 3, 3, 5, 5, 5]
     assert stage_subgoals(tcp[:1], np.array([], dtype=np.int16))[:, 0].tolist() == [0]
@@ -327,15 +429,24 @@ def test_diagnostic_scripts_run_on_a_collection(collection):
     floor = load_script("action_floor")
     x, y = floor.privileged_inputs(collection)
     assert x.shape[1] == 9 and y.shape == (len(x), 3) and torch.isfinite(x).all()
-    assert np.isfinite(floor.held_out_mse(x, (y - y.mean(0)) / y.std(0).clamp_min(1e-3), steps=3, seed=0))
+    assert np.isfinite(
+        floor.held_out_mse(x, (y - y.mean(0)) / y.std(0).clamp_min(1e-3), steps=3, seed=0)
+    )
     probe = load_script("localization_probe")
     sets = probe.stage0_frames(collection, frames_per_episode=3, held_out={3}, train_envs=2)
     assert sets["train"][0].shape[1:] == (4, H, W) and sets["held-out envs"][1].shape[1] == 2
-    probe.main(probe.Config(data=collection, held_out_envs=(3,), steps=2, batch_size=4, eval_every=1))
+    probe.main(
+        probe.Config(data=collection, held_out_envs=(3,), steps=2, batch_size=4, eval_every=1)
+    )
 
 
 def test_policy_benchmark_trains_every_mini_policy():
     bench = load_script("bench_policies")
     for name in POLICIES:  # the mini profile's losses need proprio and stage targets in the batch
         policy = make_policy(name, POLICIES.preset(name, "mini"))
-        assert bench.training_rate(policy, bench.Config(train_frames=2, repeats=1), torch.device("cpu")) > 0
+        assert (
+            bench.training_rate(
+                policy, bench.Config(train_frames=2, repeats=1), torch.device("cpu")
+            )
+            > 0
+        )

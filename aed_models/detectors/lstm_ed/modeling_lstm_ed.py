@@ -29,7 +29,9 @@ class LSTMED(ErrorDetector):
         config = config or LSTMEDConfig()
         super().__init__(config)
         self.encoder = build_visual_head(config.visual_head_config())
-        self.lstm = nn.LSTM(config.feature_dim, config.hidden_dim, config.num_layers, batch_first=True)
+        self.lstm = nn.LSTM(
+            config.feature_dim, config.hidden_dim, config.num_layers, batch_first=True
+        )
         self.classifier = mlp([config.hidden_dim, config.head_dim], out_dim=1)
         self._state: tuple[torch.Tensor, torch.Tensor] | None = None
         self._started = False
@@ -41,13 +43,17 @@ class LSTMED(ErrorDetector):
         out, _ = self.lstm(feats)  # padding comes after the valid frames: it never reaches them
         return self.classifier(out).squeeze(-1)
 
-    def loss(self, batch: Batch, policy_features: Any = None) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(
+        self, batch: Batch, policy_features: Any = None
+    ) -> tuple[torch.Tensor, dict[str, float]]:
         rollouts = batch["rollouts"]
         loss = masked_bce(self._logits(rollouts), rollouts["labels"], rollout_mask(rollouts))
         return loss, {"cls": float(loss.detach())}
 
     @torch.no_grad()
-    def score(self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None) -> torch.Tensor:
+    def score(
+        self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None
+    ) -> torch.Tensor:
         return torch.sigmoid(self._logits(rollouts)) * rollout_mask(rollouts)
 
     def reset(self, demos: Batch | None = None) -> None:
@@ -59,5 +65,7 @@ class LSTMED(ErrorDetector):
     def step(self, frame: torch.Tensor | None = None, policy_features: Any = None) -> float:
         if not self._started:
             raise RuntimeError("lstm_ed: call reset() before step()")
-        out, self._state = lstm_step(self.lstm, self.encoder(check_frame(frame, self.name)), self._state)
+        out, self._state = lstm_step(
+            self.lstm, self.encoder(check_frame(frame, self.name)), self._state
+        )
         return float(torch.sigmoid(self.classifier(out))[0, 0])

@@ -38,7 +38,9 @@ class Probe(ErrorDetector):
         config = config or ProbeConfig()
         super().__init__(config)
         c = config
-        self.gate = nn.Linear(c.history_dim, c.history_dim)  # the naive ablation's FC when the extractor is off
+        self.gate = nn.Linear(
+            c.history_dim, c.history_dim
+        )  # the naive ablation's FC when the extractor is off
         self.flow = nn.LSTM(c.history_dim, c.hidden_dim, batch_first=True)
         self.task_fc = nn.Linear(c.task_dim, c.hidden_dim)
         self.fusion = nn.Linear(2 * c.hidden_dim, c.embed_dim)
@@ -76,12 +78,14 @@ class Probe(ErrorDetector):
         c = self.config
         if history.shape[-1] != c.history_dim or task.shape[-1] != c.task_dim:
             raise ValueError(
-                f"policy features of sizes history {history.shape[-1]}, task {task.shape[-1]}: this PrObe "
-                f"was built for history_dim={c.history_dim}, task_dim={c.task_dim}"
+                f"policy features of sizes history {history.shape[-1]}, task {task.shape[-1]}: "
+                f"this PrObe was built for history_dim={c.history_dim}, task_dim={c.task_dim}"
             )
 
     # -- training -----------------------------------------------------------------------------
-    def loss(self, batch: Batch, policy_features: Any = None, generator: torch.Generator | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(
+        self, batch: Batch, policy_features: Any = None, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, dict[str, float]]:
         """lambda_cls L_cls + lambda_pat L_pat + lambda_tem L_tem (see `aed_models.losses`)."""
         c = self.config
         rollouts = batch["rollouts"]
@@ -94,16 +98,22 @@ class Probe(ErrorDetector):
         if c.lambda_pat:
             parts["pat"] = pattern_l1(out["patterns"], mask)
         if c.lambda_tem:
-            triplets = sample_triplets(rollouts["labels"], mask, rollouts["is_failure"], c.triplets_per_rollout, generator)
+            triplets = sample_triplets(
+                rollouts["labels"], mask, rollouts["is_failure"], c.triplets_per_rollout, generator
+            )
             lengths = rollouts.get("lengths", mask.sum(1))
-            parts["tem"] = temporal_triplet_loss(out["embeddings"], triplets, lengths, c.margin, c.alpha, c.clip)
+            parts["tem"] = temporal_triplet_loss(
+                out["embeddings"], triplets, lengths, c.margin, c.alpha, c.clip
+            )
         weights = {"cls": c.lambda_cls, "pat": c.lambda_pat, "tem": c.lambda_tem}
         total = sum(weights[k] * v for k, v in parts.items())
         return total, {k: float(v.detach()) for k, v in parts.items()}
 
     # -- inference ----------------------------------------------------------------------------
     @torch.no_grad()
-    def score(self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None) -> torch.Tensor:
+    def score(
+        self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None
+    ) -> torch.Tensor:
         mask = rollout_mask(rollouts)
         history, task = split_features(policy_features)
         return torch.sigmoid(self(history, task)["logits"]) * mask
@@ -114,7 +124,11 @@ class Probe(ErrorDetector):
         self._started = True
 
     @torch.no_grad()
-    def step(self, frame: torch.Tensor | None = None, policy_features: tuple[torch.Tensor, torch.Tensor] | None = None) -> float:
+    def step(
+        self,
+        frame: torch.Tensor | None = None,
+        policy_features: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> float:
         if not self._started:
             raise RuntimeError("probe: call reset(demos) before step()")
         f_h, f_zeta = split_features(policy_features)

@@ -73,7 +73,10 @@ class RNDOE(ErrorDetector):
 
     def _unit(self, history: torch.Tensor) -> torch.Tensor:
         if history.shape[-1] != self.config.history_dim:
-            raise ValueError(f"history features of size {history.shape[-1]}: built for history_dim={self.config.history_dim}")
+            raise ValueError(
+                f"history features of size {history.shape[-1]}: "
+                f"built for history_dim={self.config.history_dim}"
+            )
         return history / history.norm(dim=-1, keepdim=True).clamp(min=self.config.norm_eps)
 
     @torch.no_grad()
@@ -85,14 +88,20 @@ class RNDOE(ErrorDetector):
         mean, var = unit.mean(0), unit.var(0, unbiased=False)
         total = self.input_count + n
         delta = mean - self.input_mean
-        m2 = self.input_var * self.input_count + var * n + delta.pow(2) * self.input_count * n / total
+        m2 = (
+            self.input_var * self.input_count
+            + var * n
+            + delta.pow(2) * self.input_count * n / total
+        )
         self.input_mean.add_(delta * n / total)
         self.input_var.copy_(m2 / total)
         self.input_count.copy_(total)
 
     def _whiten(self, unit: torch.Tensor) -> torch.Tensor:
         std = self.input_var.sqrt().clamp(min=self.config.norm_eps)
-        return ((unit - self.input_mean) / std).clamp(-self.config.input_clip, self.config.input_clip)
+        return ((unit - self.input_mean) / std).clamp(
+            -self.config.input_clip, self.config.input_clip
+        )
 
     def errors(self, history: torch.Tensor) -> torch.Tensor:
         """(..., Dh) -> raw squared prediction errors (...), averaged over output cells."""
@@ -101,14 +110,18 @@ class RNDOE(ErrorDetector):
             target = self.target(x)
         return (self.predictor(x) - target).pow(2).mean(-1)
 
-    def loss(self, batch: Batch, policy_features: Any = None) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(
+        self, batch: Batch, policy_features: Any = None
+    ) -> tuple[torch.Tensor, dict[str, float]]:
         """Mean prediction error over the valid frames of successful rollouts."""
         rollouts = batch["rollouts"]
         mask = rollout_mask(rollouts)
         if "is_failure" in rollouts:
             mask = mask & ~rollouts["is_failure"].bool()[:, None]
         if not mask.any():
-            raise ValueError("rnd_oe trains on successes: the batch has no successful rollout frame")
+            raise ValueError(
+                "rnd_oe trains on successes: the batch has no successful rollout frame"
+            )
         history, _ = split_features(policy_features)
         if self.training:
             self.update_input_stats(self._unit(history[mask]))
@@ -160,7 +173,9 @@ class RNDOE(ErrorDetector):
         return self.errors(history) / self.time_scale[self._bins(steps)]
 
     @torch.no_grad()
-    def score(self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None) -> torch.Tensor:
+    def score(
+        self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None
+    ) -> torch.Tensor:
         mask = rollout_mask(rollouts)
         history, _ = split_features(policy_features)
         score = self.calibrated(history, steps_of(rollouts, mask)) * mask
@@ -179,7 +194,11 @@ class RNDOE(ErrorDetector):
         self._t, self._baseline_sum, self._max = 0, 0.0, 0.0
 
     @torch.no_grad()
-    def step(self, frame: torch.Tensor | None = None, policy_features: tuple[torch.Tensor, torch.Tensor] | None = None) -> float:
+    def step(
+        self,
+        frame: torch.Tensor | None = None,
+        policy_features: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> float:
         self._require_reset(self._step_scale)
         f_h, _ = split_features(policy_features)
         bin_ = int(self._bins(torch.tensor(self._t)))

@@ -70,14 +70,25 @@ class SVDDED(ErrorDetector):
         embeddings = encode_frames(self.encoder, frames, mask)
         if self.config.centre == "all":
             return embeddings[mask].mean(0, keepdim=True)
-        source = torch.where(mask, steps_of(demos, mask), torch.iinfo(torch.int64).max)  # padding is never "at or before t"
+        source = torch.where(
+            mask, steps_of(demos, mask), torch.iinfo(torch.int64).max
+        )  # padding is never "at or before t"
         steps = torch.arange(int(source[mask].max()) + 1, device=mask.device)
-        latest = torch.searchsorted(source.contiguous(), steps.expand(len(source), -1).contiguous(), right=True) - 1
-        latest = latest.clamp(min=0)  # a demonstration's first kept frame stands for the steps before it
+        latest = (
+            torch.searchsorted(
+                source.contiguous(), steps.expand(len(source), -1).contiguous(), right=True
+            )
+            - 1
+        )
+        latest = latest.clamp(
+            min=0
+        )  # a demonstration's first kept frame stands for the steps before it
         picked = embeddings.gather(1, latest[..., None].expand(-1, -1, embeddings.shape[-1]))
         return picked.mean(0)
 
-    def distance(self, embeddings: torch.Tensor, steps: torch.Tensor, centres: torch.Tensor) -> torch.Tensor:
+    def distance(
+        self, embeddings: torch.Tensor, steps: torch.Tensor, centres: torch.Tensor
+    ) -> torch.Tensor:
         """Scale-free squared distance of each embedding (..., D) at step `steps` (...) to its
         centre: the nearest of the centres of steps t - window .. t + window (`aligned`)."""
         last = len(centres) - 1
@@ -86,7 +97,9 @@ class SVDDED(ErrorDetector):
         squared = (embeddings[..., None, :] - centres[rows]).pow(2).sum(-1).amin(-1)
         return squared / (centres.pow(2).sum(-1).mean() + self.config.eps)
 
-    def loss(self, batch: Batch, policy_features: Any = None) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(
+        self, batch: Batch, policy_features: Any = None
+    ) -> tuple[torch.Tensor, dict[str, float]]:
         from aed_models.nn import encode_frames
 
         rollouts = batch["rollouts"]
@@ -94,7 +107,9 @@ class SVDDED(ErrorDetector):
         if "is_failure" in rollouts:
             mask = mask & ~rollouts["is_failure"].bool()[:, None]
         if not mask.any():
-            raise ValueError("svdd_ed trains on successes: the batch has no successful rollout frame")
+            raise ValueError(
+                "svdd_ed trains on successes: the batch has no successful rollout frame"
+            )
         with torch.no_grad():  # a fixed target per iteration, as Ruff et al. fix c
             centres = self.centres(batch["demos"])
         embeddings = encode_frames(self.encoder, rollouts["frames"], mask)[mask]
@@ -108,7 +123,9 @@ class SVDDED(ErrorDetector):
         return loss, parts
 
     @torch.no_grad()
-    def score(self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None) -> torch.Tensor:
+    def score(
+        self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None
+    ) -> torch.Tensor:
         from aed_models.nn import encode_frames
 
         mask = rollout_mask(rollouts)

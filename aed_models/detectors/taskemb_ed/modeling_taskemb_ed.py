@@ -45,7 +45,9 @@ class TaskEmbED(ErrorDetector):
         frames, mask = demo_mask(demos, self.name)
         n = frames.shape[0]
         last = mask.long().sum(1) - 1
-        ends = torch.cat([frames[:, 0], frames[torch.arange(n, device=frames.device), last]])  # (2N, 4, H, W)
+        ends = torch.cat(
+            [frames[:, 0], frames[torch.arange(n, device=frames.device), last]]
+        )  # (2N, 4, H, W)
         feats = self.encoder(ends)
         return torch.cat([feats[:n], feats[n:]], dim=-1).mean(0)
 
@@ -57,15 +59,23 @@ class TaskEmbED(ErrorDetector):
         from aed_models.nn import encode_frames
 
         mask = rollout_mask(rollouts)
-        return self.logits(encode_frames(self.encoder, rollouts["frames"], mask), self.task_embedding(demos))
+        return self.logits(
+            encode_frames(self.encoder, rollouts["frames"], mask), self.task_embedding(demos)
+        )
 
-    def loss(self, batch: Batch, policy_features: Any = None) -> tuple[torch.Tensor, dict[str, float]]:
+    def loss(
+        self, batch: Batch, policy_features: Any = None
+    ) -> tuple[torch.Tensor, dict[str, float]]:
         rollouts = batch["rollouts"]
-        loss = masked_bce(self._batch_logits(rollouts, batch["demos"]), rollouts["labels"], rollout_mask(rollouts))
+        loss = masked_bce(
+            self._batch_logits(rollouts, batch["demos"]), rollouts["labels"], rollout_mask(rollouts)
+        )
         return loss, {"cls": float(loss.detach())}
 
     @torch.no_grad()
-    def score(self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None) -> torch.Tensor:
+    def score(
+        self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None
+    ) -> torch.Tensor:
         mask = rollout_mask(rollouts)
         probabilities = torch.sigmoid(self._batch_logits(rollouts, demos)) * mask
         return running_max(probabilities, mask) if self.config.running_max else probabilities

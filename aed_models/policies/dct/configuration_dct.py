@@ -16,7 +16,8 @@ class DCTConfig(PolicyConfig):
         encoder_layers: cross-demonstration attention layers over all demonstration frames.
         decoder_layers: rollout-demonstration attention layers (causal over the rollout).
         num_heads: attention heads; must divide the visual head's `out_dim`.
-        ff_dim: hidden size of each layer's feed-forward block (not in the paper; PyTorch's default).
+        ff_dim: hidden size of each layer's feed-forward block (not in the paper; PyTorch's
+            default).
         dropout: dropout in attention and feed-forward.
         norm_eps: LayerNorm epsilon.
     """
@@ -32,7 +33,11 @@ class DCTConfig(PolicyConfig):
     def preset(cls, profile: str) -> DCTConfig:
         """Under mini and demo, 24 frames per demonstration and a smaller feed-forward."""
         config = super().preset(profile)
-        return config if profile == "paper" else dataclasses.replace(config, ff_dim=512, demo_frames=24)
+        return (
+            config
+            if profile == "paper"
+            else dataclasses.replace(config, ff_dim=512, demo_frames=24)
+        )
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -40,7 +45,9 @@ class DCTConfig(PolicyConfig):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
         if self.visual.out_dim % self.num_heads:
-            raise ValueError(f"num_heads={self.num_heads}: must divide visual.out_dim={self.visual.out_dim}")
+            raise ValueError(
+                f"num_heads={self.num_heads}: must divide visual.out_dim={self.visual.out_dim}"
+            )
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"dropout={self.dropout}: must lie in [0, 1)")
         if self.norm_eps <= 0:

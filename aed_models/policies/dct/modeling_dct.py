@@ -24,12 +24,13 @@ from aed_models.policies.dct.configuration_dct import DCTConfig
 
 @dataclass
 class DemoMemory:
-    kv: list[tuple[torch.Tensor, torch.Tensor]]  # per decoder layer: (1, heads, N * L, head_dim) each
+    kv: list[
+        tuple[torch.Tensor, torch.Tensor]
+    ]  # per decoder layer: (1, heads, N * L, head_dim) each
     allowed: torch.Tensor  # (1, 1, 1, N * L) bool: real frames
 
 
 class DCTPolicy(DCPolicy):
-
     def __init__(self, config: DCTConfig):
         d = config.visual.out_dim
         super().__init__(config, history_dim=d, task_dim=d)
@@ -37,7 +38,9 @@ class DCTPolicy(DCPolicy):
         self.encoder = nn.ModuleList(EncoderLayer(*args) for _ in range(config.encoder_layers))
         self.decoder = nn.ModuleList(DecoderLayer(*args) for _ in range(config.decoder_layers))
 
-    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None) -> DemoMemory:
+    def encode_demos(
+        self, frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None
+    ) -> DemoMemory:
         n, length = mask.shape
         f = self.embed(frames, mask, proprio)
         steps = torch.arange(length, device=f.device, dtype=f.dtype)
@@ -48,7 +51,9 @@ class DCTPolicy(DCPolicy):
             x = layer(x, allowed)
         return DemoMemory([layer.cross_attn.project_kv(x) for layer in self.decoder], allowed)
 
-    def sequence(self, f: torch.Tensor, mask: torch.Tensor, memory: DemoMemory) -> tuple[torch.Tensor, torch.Tensor]:
+    def sequence(
+        self, f: torch.Tensor, mask: torch.Tensor, memory: DemoMemory
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         b = f.shape[0]
         x = f
         for layer, (k, v) in zip(self.decoder, memory.kv, strict=True):

@@ -10,7 +10,8 @@ from aed_models.policies.configuration_base import PolicyConfig
 
 @dataclass
 class SCANConfig(PolicyConfig):
-    """Paper's appendix table "Task-embedding network settings" (SCAN): one unidirectional LSTM layer.
+    """Paper's appendix table "Task-embedding network settings" (SCAN): one unidirectional LSTM
+    layer.
 
     Args:
         lstm_hidden: size of the LSTM over the rollout's visual features (the history feature).

@@ -28,7 +28,6 @@ class DemoMemory:
 
 
 class SCANPolicy(DCPolicy):
-
     def __init__(self, config: SCANConfig):
         d = config.visual.out_dim
         super().__init__(config, history_dim=config.lstm_hidden, task_dim=d)
@@ -38,7 +37,9 @@ class SCANPolicy(DCPolicy):
         self.value = nn.Linear(d, d)
         self.scale = 1.0 / math.sqrt(config.attention_dim)
 
-    def encode_demos(self, frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None) -> DemoMemory:
+    def encode_demos(
+        self, frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None
+    ) -> DemoMemory:
         f = self.embed(frames, mask, proprio)
         return DemoMemory(self.key(f), self.value(f), mask)
 
@@ -49,7 +50,9 @@ class SCANPolicy(DCPolicy):
         weights = torch.softmax(scores, dim=-1)
         return torch.einsum("btnl,nld->btnd", weights, memory.values).mean(dim=2)
 
-    def sequence(self, f: torch.Tensor, mask: torch.Tensor, memory: DemoMemory) -> tuple[torch.Tensor, torch.Tensor]:
+    def sequence(
+        self, f: torch.Tensor, mask: torch.Tensor, memory: DemoMemory
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         history, _ = self.lstm(f)  # padding sits after the valid steps, so they are unaffected
         return history, self.attend(history, memory)
 
