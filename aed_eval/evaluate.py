@@ -397,6 +397,17 @@ def _f(x: Any, digits: int = 3) -> str:
     return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{digits}f}"
 
 
+def delay_counts_text(delays: dict[str, Any]) -> str:
+    """`key: early/on time/late/missed` counts of each threshold's detection delays ('-': none)."""
+    return (
+        "; ".join(
+            f"{k}: " + "/".join(str(v["counts"][c]) for c in metrics.DELAY_CLASSES)
+            for k, v in delays.items()
+        )
+        or "-"
+    )
+
+
 def with_interval(value: Any, interval: Any, digits: int = 3) -> str:
     """`0.712 [0.60, 0.81]`, or `-` when undefined."""
     if value is None or not np.isfinite(value):
@@ -483,13 +494,7 @@ def format_results(results: dict[str, Any]) -> str:
         ]
         for name, row in results["detectors"].items():
             lab = row.get("labelled", {})
-            delays = (
-                "; ".join(
-                    f"{k}: " + "/".join(str(v["counts"][c]) for c in metrics.DELAY_CLASSES)
-                    for k, v in lab.get("delays", {}).items()
-                )
-                or "-"
-            )
+            delays = delay_counts_text(lab.get("delays", {}))
             lines.append(
                 f"| {name} | "
                 f"{with_interval(lab.get('frame_auroc'), lab.get('frame_auroc_interval'))} | "

@@ -167,6 +167,8 @@ def monitor(
     from aed_models.layout import RunLayout
 
     task = aed_tasks.get_task(task).task_name
+    if num_demos < 1 or not 0.0 < alpha < 1.0:
+        raise ValueError(f"num_demos={num_demos}, alpha={alpha}: num_demos >= 1, alpha in (0, 1)")
     layout = RunLayout(runs)
     policy_model, sha = load_policy_checked(layout.policy(task, policy))
     path = layout.detector(task, detector, policy)

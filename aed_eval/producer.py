@@ -123,6 +123,8 @@ def prepare_folder(
     from the plan (e.g. another shard size) is an error too, never overwritten.
     """
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: a file, not a folder")
     stems = [s.stem for s in shards]
     repeated = sorted({stem for stem in stems if stems.count(stem) > 1})
     if repeated:

@@ -29,7 +29,13 @@ import numpy as np
 import tyro
 
 from aed_eval import metrics
-from aed_eval.evaluate import ENDING_TITLES, MIN_PER_OUTCOME, too_small, with_interval
+from aed_eval.evaluate import (
+    ENDING_TITLES,
+    MIN_PER_OUTCOME,
+    delay_counts_text,
+    too_small,
+    with_interval,
+)
 from aed_eval.scoring import PAPER_DETECTORS
 from aed_tasks import trajectory
 
@@ -297,13 +303,7 @@ def build_report(cases: list[dict[str, Any]], detectors: list[str]) -> tuple[dic
             if not lab:
                 continue
             report["labelled"].setdefault(name, {})[d] = lab
-            delays = (
-                "; ".join(
-                    f"{k}: " + "/".join(str(v["counts"][c]) for c in metrics.DELAY_CLASSES)
-                    for k, v in lab.get("delays", {}).items()
-                )
-                or "-"
-            )
+            delays = delay_counts_text(lab.get("delays", {}))
             lines.append(
                 f"| {name} | {d} | "
                 f"{with_interval(lab['frame_auroc'], lab.get('frame_auroc_interval'))} | {delays} |"

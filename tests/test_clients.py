@@ -1,5 +1,6 @@
 """ManiSkill's own clients on every registered AED id: the vector env its PPO and imitation
-baselines use (`ManiSkillVectorEnv`) and its trajectory recorder (`RecordEpisode`)."""
+baselines use (`ManiSkillVectorEnv`), its trajectory recorder (`RecordEpisode`) and its replay
+tool on what the recorder wrote."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import json
 import gymnasium as gym
 import pytest
 import torch
+from mani_skill.trajectory import replay_trajectory as replay
 from mani_skill.utils.wrappers.record import RecordEpisode
 from mani_skill.vector.wrappers.gymnasium import ManiSkillVectorEnv
 
@@ -50,3 +52,19 @@ def test_maniskill_record_episode_writes_a_trajectory_of_every_id(env_id, tmp_pa
     meta = json.loads((tmp_path / "traj.json").read_text())
     assert meta["env_info"]["env_id"] == env_id and meta["episodes"][0]["elapsed_steps"] == 3
     assert (tmp_path / "traj.h5").stat().st_size > 0
+    replay.main(
+        replay.parse_args(
+            [
+                "--traj-path",
+                str(tmp_path / "traj.h5"),
+                "--use-env-states",
+                "--obs-mode",
+                "state",
+                "--save-traj",
+                "--allow-failure",
+            ]
+        )
+    )
+    replayed = [p for p in tmp_path.glob("traj.*.json")]
+    assert len(replayed) == 1, sorted(p.name for p in tmp_path.iterdir())
+    assert json.loads(replayed[0].read_text())["episodes"][0]["elapsed_steps"] == 3

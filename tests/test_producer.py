@@ -103,3 +103,10 @@ def test_a_refused_run_leaves_the_manifest_and_shards_as_they_were(tmp_path):
     with pytest.raises(trajectory.CollectionError, match="holds shard"):  # same stem, other counts
         produce(FakeConfig(tmp_path), [FakeShard(0, 0, 3)], FakeRunner, "fake")
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_an_output_that_is_a_file_is_refused(tmp_path):
+    (tmp_path / "file").write_text("mine")
+    with pytest.raises(ValueError, match="a file, not a folder"):
+        produce(FakeConfig(tmp_path / "file"), [FakeShard(0, 0, 1)], FakeRunner, "fake")
+    assert (tmp_path / "file").read_text() == "mine"
