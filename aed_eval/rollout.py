@@ -229,7 +229,7 @@ class RolloutRunner(EpisodeRunner):
         from aed_models.policies import load_policy
 
         super().__init__(cfg if cfg.policy_sha256 else cfg.with_checkpoint_hash())
-        self.policy = load_policy(cfg.checkpoint).eval() if policy is None else policy
+        self.policy = load_policy(cfg.checkpoint, name=cfg.policy) if policy is None else policy
         env = gym.make(
             aed_tasks.env_id(cfg.task, cfg.split),
             obs_mode="rgbd",

@@ -163,6 +163,18 @@ def test_bad_input_is_named(setting, tmp_path):
                 progress=False,
             )
         )
+    with pytest.raises(ValueError, match="a policy checkpoint of 'naive_dc', expected 'dct'"):
+        run_rollouts(
+            RolloutConfig.from_preset(
+                task=TASK,
+                policy="dct",
+                checkpoint=setting["checkpoint"],
+                demos=setting["demos"],
+                out=tmp_path / "dct",
+                envs=(0,),
+                progress=False,
+            )
+        )
     result = subprocess.run(
         [
             AED,

@@ -41,7 +41,14 @@ from aed_models.detectors.base import to_device
 from aed_models.layout import RunLayout
 from aed_models.recipe import DetectorRecipe, Profile, check_profile
 from aed_models.train.feature_cache import FeatureCache, FeatureIterations
-from aed_models.train.policy import seed_everything, select_environments, trained_on
+from aed_models.train.policy import (
+    check_same_training,
+    check_task,
+    data_key,
+    seed_everything,
+    select_environments,
+    trained_on,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -218,6 +225,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
 
     # data
     episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
+    check_task(episodes, cfg.task, cfg.data)
     dataset = build_dataset(cfg, cfg.detector, episodes, policy, policy_sha or "")
     logger.info(
         "%s on %s: %d environments, %d episodes",
@@ -247,6 +255,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
         "profile": cfg.profile,
         "policy_name": policy_name,
         "policy_sha256": policy_sha,
+        "data_key": data_key(episodes),
         **trained_on(episodes),
     }
 
@@ -254,6 +263,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
     start_epoch, log = 0, []
     if cfg.resume and last_path.exists():
         ckpt = load_checkpoint(last_path, family=FAMILY, name=cfg.detector)
+        check_same_training(last_path, ckpt.extra, train_config, provenance["data_key"])
         if ckpt.extra.get("policy_sha256") != policy_sha:
             raise ValueError(
                 f"{last_path}: trained on policy {ckpt.extra.get('policy_sha256')}, "

@@ -17,6 +17,7 @@ Read top to bottom: config -> data -> model -> (resume) -> epochs -> final check
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import logging
 import random
@@ -111,6 +112,58 @@ class TrainPolicyConfig(PolicyRecipe):
         )
 
 
+# What a resumed training must share with the one it continues (its epochs may grow).
+RESUME_FIELDS = (
+    "task",
+    "policy",
+    "detector",
+    "profile",
+    "data",
+    "num_envs",
+    "seed",
+    "lr",
+    "weight_decay",
+    "max_frames",
+    "composition",
+    "rollout_frames",
+    "shift",
+    "augment",
+)
+
+
+def check_task(episodes: list, task: str, data: Path) -> None:
+    """Refuse to train a task's model on another task's episodes."""
+    tasks = sorted({e.task for e in episodes})
+    if tasks != [task]:
+        raise ValueError(
+            f"{data}: episodes of {', '.join(tasks) or 'no task'}, not of task={task!r}"
+        )
+
+
+def data_key(episodes: list) -> str:
+    """Identifies the training episodes (shard, trajectory, seed, length of each)."""
+    rows = sorted(f"{e.path.name}/{e.traj}/{e.seed}/{e.length}" for e in episodes)
+    return hashlib.sha256("\n".join(rows).encode()).hexdigest()[:16]
+
+
+def check_same_training(
+    last_path: Path, extra: dict[str, Any], train_config: dict[str, Any], key: str
+) -> None:
+    """Refuse to resume a training under other data or settings, naming the first difference."""
+    stored = extra.get("train_config", {})
+    for name in RESUME_FIELDS:
+        if name in stored and name in train_config and stored[name] != train_config[name]:
+            raise ValueError(
+                f"{last_path}: trained with {name}={stored[name]!r}, this run asks "
+                f"{train_config[name]!r}; pass --no-resume to start over, or another --out"
+            )
+    if extra.get("data_key", key) != key:
+        raise ValueError(
+            f"{last_path}: trained on other episodes than {train_config.get('data')} holds now; "
+            "pass --no-resume to start over, or another --out"
+        )
+
+
 def seed_everything(seed: int) -> None:
     random.seed(seed)
     torch.manual_seed(seed)
@@ -186,6 +239,7 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
 
     # data
     episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
+    check_task(episodes, cfg.task, cfg.data)
     composition = Composition(*cfg.composition)
     dataset = EnvironmentIterations(
         episodes,
@@ -205,12 +259,17 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
     train_config = {
         k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()
     }
-    provenance = {"train_config": train_config, **trained_on(episodes)}
+    provenance = {
+        "train_config": train_config,
+        "data_key": data_key(episodes),
+        **trained_on(episodes),
+    }
 
     # resume, or start from the data's action statistics
     start_epoch, log = 0, []
     if cfg.resume and last_path.exists():
         ckpt = load_checkpoint(last_path, family=FAMILY, name=cfg.policy)
+        check_same_training(last_path, ckpt.extra, train_config, provenance["data_key"])
         if ckpt.config != policy.config.to_dict():
             raise ValueError(
                 f"{last_path}: trained with another {cfg.policy} config ({ckpt.config}); "

@@ -5,6 +5,8 @@ Tiny configs on 32 x 32 frames; policy features are plain tensors (no policy nee
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 from torch import nn
@@ -337,6 +339,7 @@ def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
 
     config = make_detector("lstm_ed", **TINY["lstm_ed"]).config
     cfg = TrainDetectorConfig.from_preset(
+        task="PickPlace",
         detector="lstm_ed",
         data=collection,
         out=tmp_path,
@@ -346,10 +349,9 @@ def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
         progress=False,
     )
     first = load_detector(train_detector(cfg, config))
-    assert (
-        first.checkpoint_extra["task"] == "PressButton" and len(first.checkpoint_extra["log"]) == 1
-    )
+    assert first.checkpoint_extra["task"] == "PickPlace" and len(first.checkpoint_extra["log"]) == 1
     cfg2 = TrainDetectorConfig.from_preset(
+        task="PickPlace",
         detector="lstm_ed",
         data=collection,
         out=tmp_path,
@@ -363,10 +365,18 @@ def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
     assert [e["epoch"] for e in log] == [1, 2] and log[0] == first.checkpoint_extra["log"][0]
     with pytest.raises(ValueError, match="policy=None"):
         TrainDetectorConfig.from_preset(detector="probe")
+    changed = dataclasses.replace(cfg2, epochs=3, lr=1e-3)
+    with pytest.raises(ValueError, match="trained with lr=0.0003, this run asks 0.001"):
+        train_detector(changed, config)
+    with pytest.raises(ValueError, match="episodes of PickPlace, not of task='PressButton'"):
+        train_detector(
+            dataclasses.replace(cfg2, task="PressButton", out=tmp_path / "other"), config
+        )
     other = make_detector("lstm_ed", **{**TINY["lstm_ed"], "head_dim": 9}).config
     with pytest.raises(ValueError, match="another lstm_ed config"):
         train_detector(
             TrainDetectorConfig.from_preset(
+                task="PickPlace",
                 detector="lstm_ed",
                 data=collection,
                 out=tmp_path,
@@ -421,6 +431,7 @@ def test_probe_trains_on_cached_features(collection, tiny_policy, tmp_path):
 
     config = make_detector("probe", **TINY["probe"]).config  # feature sizes come from the policy
     cfg = TrainDetectorConfig.from_preset(
+        task="PickPlace",
         detector="probe",
         policy=str(tiny_policy),
         data=collection,

@@ -345,6 +345,22 @@ def test_resume_gives_the_same_weights(collection, tmp_path):
     assert [e["epoch"] for e in log] == [1, 2, 3]
     other = tiny_config("dct")
     other.ff_dim = 64
+    with pytest.raises(ValueError, match="trained with seed=0, this run asks 1"):
+        train_policy(
+            train_config(
+                collection, tmp_path / "split", policy="dct", epochs=4, num_envs=2, seed=1
+            ),
+            tiny_config("dct"),
+        )
+    with pytest.raises(ValueError, match="trained with num_envs=2, this run asks 3"):
+        train_policy(
+            train_config(collection, tmp_path / "split", policy="dct", epochs=4, num_envs=3),
+            tiny_config("dct"),
+        )
+    with pytest.raises(ValueError, match="episodes of PressButton, not of task='PickPlace'"):
+        train_policy(
+            train_config(collection, tmp_path / "x", task="PickPlace", epochs=1), tiny_config("dct")
+        )
     with pytest.raises(ValueError, match="last.pt: trained with another dct config"):
         train_policy(
             train_config(collection, tmp_path / "split", policy="dct", epochs=4, num_envs=2), other
