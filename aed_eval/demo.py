@@ -188,17 +188,11 @@ class Stages:
         c = self.cfg
         epochs = {"epochs": c.policy_epochs} if c.policy_epochs else {}
         for policy in c.policies:
-            train_policy(
-                TrainPolicyConfig.from_preset(
-                    c.task,
-                    policy,
-                    c.profile,
-                    runs=c.runs,
-                    num_envs=c.train_envs,
-                    seed=c.seed,
-                    **epochs,
-                )
+            cfg = TrainPolicyConfig.from_preset(
+                c.task, policy, c.profile, runs=c.runs, num_envs=c.train_envs, seed=c.seed, **epochs
             )
+            collected = (c.num_demos, c.num_successes)
+            train_policy(dataclasses.replace(cfg, composition=at_most(cfg.composition, collected)))
 
     def train_detectors(self) -> None:
         from aed_models.detectors import requires_policy
@@ -208,17 +202,19 @@ class Stages:
         epochs = {"epochs": c.detector_epochs} if c.detector_epochs else {}
         for detector in c.detectors:
             for policy in c.policies if requires_policy(detector) else (None,):
+                cfg = TrainDetectorConfig.from_preset(
+                    c.task,
+                    detector,
+                    c.profile,
+                    policy=policy,
+                    runs=c.runs,
+                    num_envs=c.train_envs,
+                    seed=c.seed,
+                    **epochs,
+                )
+                collected = (c.num_demos, c.num_successes, c.num_failures)
                 train_detector(
-                    TrainDetectorConfig.from_preset(
-                        c.task,
-                        detector,
-                        c.profile,
-                        policy=policy,
-                        runs=c.runs,
-                        num_envs=c.train_envs,
-                        seed=c.seed,
-                        **epochs,
-                    )
+                    dataclasses.replace(cfg, composition=at_most(cfg.composition, collected))
                 )
 
     def collect_novel(self) -> None:
@@ -325,6 +321,11 @@ class Stages:
         from aed_eval.report import ReportConfig, make_report
 
         return make_report(ReportConfig(results=tuple(results), out=self.layout.report()))
+
+
+def at_most(composition: tuple[int, ...], collected: tuple[int, ...]) -> tuple[int, ...]:
+    """A recipe's draws per iteration, capped at what the demo collected per environment."""
+    return tuple(min(want, have) for want, have in zip(composition, collected, strict=True))
 
 
 def run_demo(cfg: DemoConfig) -> tuple[Path, dict[str, float]]:
