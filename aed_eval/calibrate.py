@@ -1,18 +1,13 @@
 """`aed calibrate`: alarm thresholds with a promised false-alarm rate (beyond the paper).
 
-The paper sweeps thresholds; a robot team needs one. A threshold must be calibrated on what
-is deployed: the policy's own successful rollouts (`aed rollout --split base`), in base
-environments that neither the policy nor the detector trained on (FAIL-Detect calibrates on
-successful policy rollouts for the same reason: the scripted expert's successes look unlike
-the policy's). For each detector and each `alpha`, the split-conformal threshold on those
-rollouts' maximum scores (`aed_eval.metrics.conformal_threshold`) makes a new successful
-rollout raise a false alarm with probability at most `alpha`, as long as it is exchangeable
-with them. `aed evaluate` reports the rate actually realised on the novel successes.
-
-`--source expert` calibrates on the expert's agent successes of the base collection instead
-(the earlier protocol), kept to show what it costs: it writes `calibration-expert.json`
-beside `calibration.json`. Each file is tied to the detector's and the policy's checkpoint
-hashes; calibration refuses an environment any of the two trained on.
+The paper sweeps thresholds; a robot team needs one, calibrated on what is deployed: the
+policy's own successful rollouts in base environments that neither the policy nor the detector
+trained on (the expert's successes look unlike the policy's). Per detector and `alpha`, the
+split-conformal threshold on those rollouts' maximum scores (`metrics.conformal_threshold`)
+bounds a new success's false-alarm probability by `alpha`. `--source expert` calibrates on the
+expert's successes instead (`calibration-expert.json`), to show what that costs. Each file is
+tied to the detector's and the policy's checkpoint hashes, and no environment either trained on
+is used.
 """
 
 from __future__ import annotations

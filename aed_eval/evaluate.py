@@ -1,24 +1,12 @@
 """`aed evaluate`: the paper's main experiment for one task and policy, and more.
 
-The stored novel-split rollouts of a policy (`aed rollout`) are scored offline by every
-trained detector; per detector it reports, each number with a 95% bootstrap interval over
-rollouts (resampled within each outcome class):
-
-- rollout-level AUROC and AUPRC (the paper's accuracy function, 5000 thresholds), under the
-  default ending (every rollout runs the horizon) and, beside it, the paper's (each rollout
-  cut at its first success: a view of the same rollouts, since every score is causal);
-- at each calibrated threshold (`aed calibrate`, per source and alpha): TPR, TNR, balanced
-  accuracy, detection time and the false-alarm rate realised on the novel successes;
-- on labelled novel episodes (the experts' injected failures and clean successes, collected
-  with `aed collect --split novel`), when given: frame-level AUROC and detection delays.
-
-Two reference rows are computed the same way: `time_only` (score = step / horizon) and
-`random`. Under the default ending every rollout has the same length, so `time_only` scores
-exactly 0.5 and `random` 0.5 in expectation; under the paper's ending they show how much of a
-number is length.
-A model is never scored on an environment it trained on (`--allow-trained-envs` makes a
-diagnostic, marked as such). Results land in `runs/<task>/<policy>/eval/`: `results.json`,
-`results.md` and `scores.json` (every episode's per-frame scores, for `aed report`'s plots).
+A policy's stored novel-split rollouts are scored offline by every trained detector; per
+detector: rollout-level AUROC and AUPRC under the default ending and the paper's (cut at the
+first success), rates at each calibrated threshold, and on labelled novel episodes frame-level
+AUROC and detection delays, each with a 95% bootstrap interval. The `time_only` and `random`
+reference rows show how much of a number is length. A model is never scored on an environment
+it trained on. Results: `runs/<task>/<policy>/eval/` (`results.json`, `results.md`,
+`scores.json`).
 """
 
 from __future__ import annotations

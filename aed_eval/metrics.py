@@ -1,26 +1,12 @@
 """Metrics of the AED protocol: rollout-level AUROC / AUPRC, calibrated thresholds, delays.
 
-Rollout-level accuracy (the paper's appendix, after MoMaRT). A rollout raises an alarm at a
-threshold when any of its frames' scores reaches it; then
-
-    failed + alarm = TP,     failed + no alarm = FN,
-    succeeded + alarm = FP,  succeeded + no alarm = TN.
-
-Since "any frame reaches it" is "the rollout's maximum reaches it", every rollout-level
-count depends on the per-rollout maximum score alone. ROC and PR curves sweep 5000
-thresholds spread evenly over [0, 1] (probabilities), or over the observed score range
-(SVDDED's distances and other unbounded scores). AUROC is the trapezoid area under the ROC
-curve; AUPRC is the average precision (the step-wise area under the PR curve, as
-scikit-learn's `average_precision_score`), both over those thresholds.
-
-Beyond the paper:
-- `conformal_threshold`: split-conformal calibration on held-out successful rollouts, so
-  that a new successful rollout raises a false alarm with probability at most `alpha`;
-- `alarm_rates`: TPR, TNR, balanced accuracy and detection time at one threshold (what
-  FAIL-Detect and FIPER report);
-- `frame_auroc` and `detection_delays`: on episodes with true frame labels (the experts'
-  injected failures in the novel split);
-- `stratified_bootstrap` and `proportion_interval`: 95% intervals of every number above.
+Rollout-level accuracy (the paper's appendix, after MoMaRT): a rollout raises an alarm at a
+threshold when its maximum score reaches it (failed + alarm = TP, succeeded + alarm = FP), so
+every count depends on each rollout's maximum alone. Curves sweep 5000 thresholds over [0, 1]
+(probabilities) or over the observed range (unbounded scores); AUPRC is the average precision.
+Beyond the paper: split-conformal thresholds (`conformal_threshold`), rates at one threshold
+(`alarm_rates`), frame-level AUROC and detection delays on labelled episodes, and 95%
+intervals (`stratified_bootstrap`, `proportion_interval`).
 """
 
 from __future__ import annotations

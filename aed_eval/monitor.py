@@ -1,18 +1,11 @@
 """Online monitoring: a policy and an error detector beside a live env (a Gymnasium wrapper).
 
-`AEDMonitor` owns the policy and the detector. At every frame it asks the policy for its
-action (which also gives the policy's features), scores the frame with the detector, and
-puts the score, the alarm and the detector's latency in `info`. `step(None)` plays the
-policy's action; any other action is played instead (teleoperation, another controller),
-while the detector keeps watching. On an alarm (score >= threshold: from `aed calibrate`,
-or given; the paper's pilot uses 0.9) the monitor either
-
-- `stop`s: the episode ends (`truncated=True`, `info["alarm"]=True`), or
-- `correct`s: a correction routine takes over (the paper's pilot: move to a safe pose above
-  the table centre), then control goes back to the policy; at most `max_corrections` times.
-
-The score of frame t depends only on frames <= t, so the online scores equal the detector's
-offline `score` of the same frames (tests/test_monitor.py checks it).
+`AEDMonitor` asks the policy for each frame's action, scores the frame with the detector
+(post-processed as offline scoring is, `aed_models.detectors.postprocess`) and puts the score,
+the alarm and the latency in `info`. `step(None)` plays the policy's action, any other action
+is played instead (the detector keeps watching). On an alarm it stops the episode or hands over
+to a correction routine (the paper's pilot: a safe pose above the table), then to the policy.
+Scores of frame t depend only on frames <= t, so they equal the offline scores.
 """
 
 from __future__ import annotations
@@ -27,6 +20,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 import tyro
+
+from aed_models.detectors.postprocess import OnlinePostprocess
 
 OnAlarm = Literal["stop", "correct", "none"]
 SAFE_TCP = np.array([0.0, 0.0, 0.30])  # above the table centre (table top: z = 0)
@@ -83,6 +78,7 @@ class AEDMonitor(gym.Wrapper):
         self.threshold, self.on_alarm = float(threshold), on_alarm
         self.correction = correction or move_to_safe_pose
         self.max_corrections = max_corrections
+        self.postprocess = OnlinePostprocess(detector)
         self.scores: list[float] = []
 
     def _watch(self, obs: Any) -> dict[str, Any]:
@@ -94,7 +90,7 @@ class AEDMonitor(gym.Wrapper):
         features = self.policy.features() if self.detector.requires_policy else None
         frame = None if self.detector.requires_policy else self.policy.observation_frame(obs)
         with torch.inference_mode():
-            score = float(self.detector.step(frame, features))
+            score = self.postprocess(float(self.detector.step(frame, features)))
         latency = time.perf_counter() - start
         self.next_action = action
         self.scores.append(score)
@@ -110,6 +106,7 @@ class AEDMonitor(gym.Wrapper):
         obs, info = self.env.reset(seed=seed, options=options)
         self.policy.reset(self.demos)
         self.detector.reset(self.demos)
+        self.postprocess.reset()
         self.scores, self.corrections, self.alarms = [], 0, 0
         info.update(self._watch(obs))
         return obs, info

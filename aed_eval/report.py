@@ -1,20 +1,11 @@
 """`aed report`: the paper's main-results view over any set of (task, policy) evaluations.
 
-Reads the `results.json` (and `scores.json`) that `aed evaluate` wrote for each case and
-writes, into one folder:
-
-- `report.md` / `report.json`: AUROC and AUPRC with 95% intervals per case and detector,
-  under the default ending and the paper's (each table says which). The summary rows (Top-1
-  count, average rank, average performance difference `(score - worst) / worst`) rank the
-  paper's five detectors only, over the cases with at least 5 rollouts of each outcome;
-  `rnd_oe` and the `time_only` / `random` references stand beside them, outside the ranking.
-  A best score whose interval overlaps the runner-up's is marked `≈`; a case too small to
-  rank is marked `‡`. Then the policies' success rates, the rates at each calibrated
-  threshold (with the realised false-alarm rate), and detection delays on labelled episodes;
-- `auroc_<task>_<policy>.png`: AUROC with its interval for every detector, per ending;
-- `roc_<task>_<policy>.png`: ROC curves of every detector for one case;
-- `scores_<task>_<policy>.png`: score against time for a successful and a failed episode per
-  detector, the labelled onset marked when the failed episode has one.
+From each case's `results.json` and `scores.json` (`aed evaluate`) it writes one folder:
+`report.md` / `report.json` (AUROC and AUPRC with intervals under both endings; summary rows
+that rank the paper's five detectors only, over cases with at least 5 rollouts of each
+outcome; success rates, calibrated rates, detection delays) and per case the AUROC, ROC and
+score-against-time plots. `≈` marks a best score whose interval overlaps the runner-up's, `‡`
+a case too small to rank.
 """
 
 from __future__ import annotations

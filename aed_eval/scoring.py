@@ -73,7 +73,8 @@ class EpisodeScorer:
 
     @torch.inference_mode()
     def score(self, ref: trajectory.EpisodeRef) -> dict[str, np.ndarray]:
-        """Per-frame scores (T + 1,) of one stored episode by every detector."""
+        """Per-frame scores (T + 1,) of one stored episode by every detector, post-processed as
+        online (`aed_models.detectors.postprocess`)."""
         from aed_models.data import pad_sequences
 
         if ref.env_index not in self.demos:
@@ -87,13 +88,18 @@ class EpisodeScorer:
             features = self.policy.features(
                 rollout["frames"], rollout["mask"], demos, proprio=rollout.get("proprio")
             )
-        return {
-            d.name: d.model.score(rollout, demos, features if d.model.requires_policy else None)[0]
-            .cpu()
-            .numpy()
-            .astype(np.float64)
-            for d in self.detectors
-        }
+        return {d.name: self._scores(d, rollout, demos, features) for d in self.detectors}
+
+    @staticmethod
+    def _scores(
+        d: LoadedDetector, rollout: dict[str, Any], demos: dict[str, Any], features: Any
+    ) -> np.ndarray:
+        """One detector's post-processed scores (T + 1,) of a batch of one rollout."""
+        from aed_models.detectors.postprocess import postprocess
+
+        per_frame = d.model.score(rollout, demos, features if d.model.requires_policy else None)
+        scores = postprocess(d.model, per_frame, rollout["mask"])
+        return scores[0].cpu().numpy().astype(np.float64)
 
 
 class Demonstrations:

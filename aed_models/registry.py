@@ -74,8 +74,10 @@ class ModelRegistry:
 
     def config_from_dict(self, name: str, values: dict[str, Any]) -> Any:
         """Rebuild a config from its `to_dict()` form (unknown keys refused, missing ones
-        default)."""
+        default); a config class may define `upgrade_dict(values)` for older checkpoints."""
         config_cls = self.config_type(name)
+        upgrade = getattr(config_cls, "upgrade_dict", None)
+        values = upgrade(values) if upgrade is not None else values
         known = {f.name for f in dataclasses.fields(config_cls)}
         unknown = sorted(set(values) - known)
         if unknown:

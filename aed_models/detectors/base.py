@@ -1,16 +1,13 @@
 """The interface every error detector implements, and the pieces the visual baselines share.
 
-A detector reads an agent rollout frame by frame and says, per frame, how likely a behaviour
-error is (`output = "probability"`) or how far the frame lies from normal behaviour
-(`output = "distance"`). It is used two ways, which agree to 1e-5 in eval mode:
-
-- offline, batched: `score(rollouts, demos, policy_features) -> (B, T)`;
-- online: `reset(demos)` once, then `step(frame, policy_features) -> float` per frame, with
-  constant state per step (LSTM states, or cached keys/values of a causal decoder).
-
-Policy-dependent detectors (`requires_policy`) read the frozen policy's per-frame history
-features f_h (B, T, Dh) and task embedding f_zeta (B, T, Dz) instead of frames; online they
-take the pair the policy's `features()` returns.
+A detector says, per frame of an agent rollout, how likely a behaviour error is (`output =
+"probability"`) or how far the frame lies from normal behaviour (`"distance"`), two ways that
+agree to 1e-5 in eval mode: batched, `score(rollouts, demos, policy_features) -> (B, T)`, and
+online, `reset(demos)` then `step(frame, policy_features) -> float` with constant state per
+step. Both give per-frame outputs; scoring and monitoring post-process them in one place
+(`aed_models.detectors.postprocess`). Policy-dependent detectors (`requires_policy`) read the
+frozen policy's history features f_h (B, T, Dh) and task embedding f_zeta (B, T, Dz) instead
+of frames; online, the pair the policy's `features()` returns.
 """
 
 from __future__ import annotations
@@ -19,6 +16,8 @@ from typing import Any, ClassVar, Literal
 
 import torch
 from torch import nn
+
+from aed_models.nn.batch import check_sequences
 
 Batch = dict[str, Any]
 
@@ -63,6 +62,9 @@ class ErrorDetector(nn.Module):
     requires_policy: ClassVar[bool] = False
     output: ClassVar[Literal["probability", "distance"]] = "probability"
     trains_on: ClassVar[Literal["both", "successes"]] = "both"
+    # Scores each frame alone: the protocol reads the running maximum of its outputs
+    # (`aed_models.detectors.postprocess`).
+    memoryless: ClassVar[bool] = False
 
     def __init__(self, config: Any):
         super().__init__()
@@ -99,6 +101,14 @@ class ErrorDetector(nn.Module):
         raise NotImplementedError
 
     # -- bookkeeping ------------------------------------------------------------------------
+    def upgrade_state_dict(self, state_dict: dict[str, Any]) -> dict[str, Any]:
+        """A state dict of an older layout in today's keys (identity unless a detector renamed
+        its modules); every load goes through it, so older checkpoints keep loading."""
+        return state_dict
+
+    def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
+        return super().load_state_dict(self.upgrade_state_dict(state_dict), strict, assign)
+
     def num_parameters(self, trainable_only: bool = False) -> int:
         return sum(p.numel() for p in self.parameters() if p.requires_grad or not trainable_only)
 
@@ -114,18 +124,6 @@ def rollout_mask(rollouts: Batch) -> torch.Tensor:
     return rollouts["mask"].bool()
 
 
-def running_max(scores: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """(B, T) per-frame scores -> their running maximum over each rollout's frames so far.
-
-    For the detectors without memory (SVDDED, TaskEmbED, RND-OE; their `running_max` option).
-    Failure labels run from the error's onset to the end of the rollout: a recurrent or
-    attending detector learns from them that an error persists, one that scores each frame
-    alone cannot (a frame after a missed press can look like one before it). Thresholded
-    online, the first crossing raises the same alarm with or without it.
-    """
-    return torch.cummax(scores * mask, dim=1).values * mask
-
-
 def steps_of(sequences: Batch, mask: torch.Tensor) -> torch.Tensor:
     """(B, L) step of each frame in its episode: `source` where the batch keeps it (frames
     subsampled or augmented in training), else the frame's position."""
@@ -137,23 +135,19 @@ def steps_of(sequences: Batch, mask: torch.Tensor) -> torch.Tensor:
     )
 
 
-def demo_mask(demos: Batch | None, name: str) -> tuple[torch.Tensor, torch.Tensor]:
+def rollout_frames(rollouts: Batch) -> tuple[torch.Tensor, torch.Tensor]:
+    """(frames (B, T, 4, H, W), mask (B, T)) of a rollouts dict, checked."""
+    rollout_mask(rollouts)
+    return check_sequences(rollouts, "rollouts", features=False)
+
+
+def check_demos(demos: Batch | None, name: str) -> tuple[torch.Tensor, torch.Tensor]:
     """(frames (N, L, 4, H, W), mask (N, L)) of a demos dict, checked."""
-    if demos is None or "frames" not in demos:
+    if demos is None:
         raise ValueError(
             f"{name} needs demonstrations: a dict with frames (N, L, 4, H, W) and mask (N, L)"
         )
-    frames = demos["frames"]
-    if frames.dim() != 5:
-        raise ValueError(
-            f"demos['frames'] of shape {tuple(frames.shape)}: expected (N, L, 4, H, W)"
-        )
-    mask = demos.get("mask")
-    if mask is None:
-        mask = torch.ones(frames.shape[:2], dtype=torch.bool, device=frames.device)
-    if not mask.any(dim=1).all():
-        raise ValueError(f"{name}: a demonstration has no frame")
-    return frames, mask.bool()
+    return check_sequences(demos, f"{name} demos", features=False)
 
 
 def check_frame(frame: torch.Tensor | None, name: str) -> torch.Tensor:

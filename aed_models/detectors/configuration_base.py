@@ -53,6 +53,20 @@ class DetectorConfig:
         """Plain JSON-able dict for checkpoints and logs."""
         return dataclasses.asdict(self)
 
+    @classmethod
+    def upgrade_dict(cls, values: dict[str, Any]) -> dict[str, Any]:
+        """An older checkpoint's config dict in today's fields (the registry reads every config
+        through it). `running_max` (SVDDED, TaskEmbED, RND-OE) became the post-processing of every
+        memoryless detector (`aed_models.detectors.postprocess`): True is dropped, False refused."""
+        values = dict(values)
+        if values.pop("running_max", True) is False:
+            raise ValueError(
+                "running_max=False: per-frame scores are no longer a config option; the protocol "
+                "takes the running maximum of every memoryless detector (its `score` gives the "
+                "per-frame outputs)"
+            )
+        return values
+
 
 @dataclasses.dataclass
 class VisualDetectorConfig(DetectorConfig):

@@ -13,6 +13,7 @@ from aed_models.nn.config import VisualHeadConfig
 _LAZY = {
     "VisualHead": "aed_models.nn.encoders",
     "build_visual_head": "aed_models.nn.encoders",
+    "check_sequences": "aed_models.nn.batch",
     "encode_frames": "aed_models.nn.encoders",
     "lstm_step": "aed_models.nn.recurrent",
     "mlp": "aed_models.nn.mlp",

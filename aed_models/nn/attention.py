@@ -137,6 +137,19 @@ class DecoderLayer(nn.Module):
         return self.norm3(x + self.drop(self.ff(x)))
 
 
+def sinusoid(positions: torch.Tensor, dim: int) -> torch.Tensor:
+    """(...,) integer positions -> (..., dim) sinusoidal encodings (Vaswani et al.)."""
+    half = dim // 2
+    freqs = torch.exp(
+        -math.log(10000.0)
+        * torch.arange(half, dtype=torch.float32, device=positions.device)
+        / max(half, 1)
+    )
+    angles = positions.to(torch.float32)[..., None] * freqs
+    out = torch.cat([angles.sin(), angles.cos()], dim=-1)
+    return F.pad(out, (0, dim - 2 * half))
+
+
 def progress_encoding(progress: torch.Tensor, dim: int) -> torch.Tensor:
     """Sinusoidal code of a progress value in [0, 1]: (...,) -> (..., dim).
 

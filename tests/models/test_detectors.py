@@ -6,6 +6,7 @@ Tiny configs on 32 x 32 frames; policy features are plain tensors (no policy nee
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import pytest
 import torch
@@ -20,6 +21,7 @@ from aed_models.detectors import (
     save_detector,
 )
 
+FIXTURES = Path(__file__).parents[1] / "fixtures"
 H = W = 32
 DH, DZ = 12, 10
 TINY_VISUAL = {"arch": "small_cnn", "feature_dim": 16, "width": 4, "dropout": 0.1}
@@ -149,6 +151,29 @@ def test_checkpoint_round_trip_and_refusal(name, tmp_path):
         load_detector(path, name=other)
 
 
+def test_dct_ed_checkpoint_of_the_old_layout_loads_and_scores_the_same():
+    """The fixture: a TINY DCTED after 3 Adam steps on make_batch(), saved at d69a1b6 (its own
+    attention blocks, keys `...attn.query.weight`), with its scores of make_batch(seed=3)."""
+    from aed_models.checkpoint import load_checkpoint
+
+    path = FIXTURES / "dct_ed_before_shared_attention.pt"
+    old_keys = load_checkpoint(path, family="detector").state_dict
+    assert any(".self_attn.query." in k for k in old_keys)
+    assert any(".cross_attn.value." in k for k in old_keys)
+    assert any(".attn.key." in k for k in old_keys)
+    detector = load_detector(path, name="dct_ed")
+    assert not any(k.endswith(("query.weight", "key.weight")) for k in detector.state_dict())
+    batch, features = make_batch(seed=3)
+    scores = detector.score(batch["rollouts"], batch["demos"], features)
+    torch.testing.assert_close(
+        scores, torch.tensor(detector.checkpoint_extra["scores"]), atol=1e-6, rtol=0
+    )
+    fresh = tiny("dct_ed").eval()
+    assert not torch.allclose(fresh.score(batch["rollouts"], batch["demos"], features), scores)
+    fresh.load_state_dict(old_keys)  # resuming training reads the old layout too
+    torch.testing.assert_close(fresh.score(batch["rollouts"], batch["demos"], features), scores)
+
+
 def test_registry_errors_and_profiles():
     with pytest.raises(ValueError, match="known.*probe"):
         make_detector("nope")
@@ -171,6 +196,7 @@ def test_interface_attributes():
     assert {n for n, d in kinds.items() if d.requires_policy} == {"probe", "rnd_oe"}
     assert {n for n, d in kinds.items() if d.output == "distance"} == {"svdd_ed", "rnd_oe"}
     assert {n for n, d in kinds.items() if d.trains_on == "successes"} == {"svdd_ed", "rnd_oe"}
+    assert {n for n, d in kinds.items() if d.memoryless} == {"svdd_ed", "taskemb_ed", "rnd_oe"}
 
 
 def test_step_before_reset_and_missing_inputs_fail_clearly():
@@ -188,6 +214,27 @@ def test_step_before_reset_and_missing_inputs_fail_clearly():
         lstm.step(None)
     with pytest.raises(ValueError, match="demonstrations"):
         tiny("dct_ed").reset(None)
+
+
+@pytest.mark.parametrize("name", ["svdd_ed", "taskemb_ed", "lstm_ed", "dct_ed"])
+def test_visual_detectors_name_what_is_wrong_with_a_batch(name):
+    """The shared batch check (`aed_models.nn.batch.check_sequences`) on rollouts and demos."""
+    batch, _ = make_batch()
+    rollouts, demos = batch["rollouts"], batch["demos"]
+    detector = tiny(name).eval()
+    with pytest.raises(KeyError, match="no 'mask'"):
+        detector.score({"frames": rollouts["frames"]}, demos)
+    short_mask = {**rollouts, "mask": rollouts["mask"][:, :3]}
+    with pytest.raises(ValueError, match=r"rollouts\['mask'\] of shape \(4, 3\)"):
+        detector.score(short_mask, demos)
+    with pytest.raises(ValueError, match=r"rollouts\['frames'\] of shape"):
+        detector.score({**rollouts, "frames": rollouts["frames"][:, :, :3]}, demos)
+    if name != "lstm_ed":  # LSTMED reads no demonstrations
+        empty = {**demos, "mask": torch.zeros_like(demos["mask"])}
+        with pytest.raises(ValueError, match=f"{name} demos: every sequence needs"):
+            detector.score(rollouts, empty)
+        with pytest.raises(ValueError, match=f"{name} needs demonstrations"):
+            detector.reset(None)
 
 
 def test_probe_switches():
@@ -284,19 +331,63 @@ def test_svdd_aligned_centres_follow_the_demonstrations_in_time():
 
 @pytest.mark.parametrize("name", ["svdd_ed", "taskemb_ed", "rnd_oe"])
 def test_detectors_without_memory_score_the_running_max_of_their_frames(name):
+    """The protocol's post-processing: batched and online, the running maximum of `score`."""
+    from aed_models.detectors.postprocess import OnlinePostprocess, postprocess
+
     batch, features = make_batch()
     rollouts, demos = batch["rollouts"], batch["demos"]
     detector = tiny(name).eval()
-    per_frame = make_detector(name, **TINY[name], running_max=False).eval()
-    per_frame.load_state_dict(detector.state_dict())
-    raw, scores = (
-        per_frame.score(rollouts, demos, features),
-        detector.score(rollouts, demos, features),
-    )
+    raw = detector.score(rollouts, demos, features)
+    scores = postprocess(detector, raw, rollouts["mask"])
     assert not torch.equal(raw, scores)  # the frames' scores are not already sorted
+    online = OnlinePostprocess(detector)
     for i, length in enumerate(rollouts["lengths"].tolist()):
         torch.testing.assert_close(scores[i, :length], torch.cummax(raw[i, :length], 0).values)
+        detector.reset(demos)
+        online.reset()
+        steps = [
+            online(detector.step(rollouts["frames"][i, t], (features[0][i, t], features[1][i, t])))
+            for t in range(length)
+        ]
+        torch.testing.assert_close(torch.tensor(steps), scores[i, :length], atol=1e-5, rtol=0)
     assert (scores[~rollouts["mask"]] == 0).all()
+
+
+@pytest.mark.parametrize("name", ["lstm_ed", "dct_ed", "probe"])
+def test_detectors_with_memory_are_not_post_processed(name):
+    from aed_models.detectors.postprocess import OnlinePostprocess, postprocess
+
+    batch, features = make_batch()
+    detector = tiny(name).eval()
+    raw = detector.score(batch["rollouts"], batch["demos"], features)
+    assert postprocess(detector, raw, batch["rollouts"]["mask"]) is raw
+    online = OnlinePostprocess(detector)
+    assert [online(x) for x in (0.5, 0.2, 0.7)] == [0.5, 0.2, 0.7]
+
+
+@pytest.mark.parametrize("name", ["svdd_ed", "taskemb_ed", "rnd_oe"])
+def test_checkpoints_with_the_running_max_option_load_or_say_why_not(name, tmp_path):
+    """`running_max` was a config field of the memoryless detectors before the post-processing
+    step: True (the default) loads as today's config, False (per-frame scores) is refused."""
+    from aed_models.checkpoint import save_checkpoint
+
+    detector = tiny(name).eval()
+    for value in (True, False):
+        path = tmp_path / f"{name}_{value}.pt"
+        save_checkpoint(
+            path,
+            family="detector",
+            name=name,
+            config={**detector.config.to_dict(), "running_max": value},
+            state_dict=detector.state_dict(),
+        )
+        if value:
+            assert load_detector(path).config == detector.config
+        else:
+            with pytest.raises(CheckpointError, match="running_max=False.*running maximum"):
+                load_detector(path)
+    with pytest.raises(ValueError, match="unknown config fields.*running_max"):
+        make_detector(name, running_max=True)
 
 
 # -- training loop and feature cache on a tiny synthetic collection (no simulation) -----------
@@ -443,7 +534,8 @@ def test_probe_trains_on_cached_features(collection, tiny_policy, tmp_path):
     extra = detector.checkpoint_extra
     assert extra["policy_name"] == "naive_dc" and extra["policy_sha256"] == file_sha256(tiny_policy)
     assert detector.config.history_dim != DH  # taken from the policy
-    cached = list((tmp_path / "probe" / "features" / extra["policy_sha256"][:16]).glob("*.npz"))
+    key_dir = tmp_path / "probe" / "features" / extra["policy_sha256"][:16] / "seed0-demos5"
+    cached = list(key_dir.glob("*.npz"))
     assert sorted(p.stem for p in cached) == sorted(
         f"{role}_env{e:03d}_0000" for role in ("agent_success", "agent_failure") for e in (0, 1)
     )
@@ -507,7 +599,7 @@ def test_feature_iterations_follow_the_frame_iterations(collection, tiny_policy,
 def test_rnd_oe_calibrates_errors_by_the_training_successes_at_each_step():
     """One bias-corrected update: each bin's scale is the mean success error in that bin, so
     calibrated success errors average 1 per bin; bins no success reached take the bin before."""
-    rnd = make_detector("rnd_oe", **{**TINY["rnd_oe"], "baseline_steps": 0, "running_max": False})
+    rnd = make_detector("rnd_oe", **{**TINY["rnd_oe"], "baseline_steps": 0})  # per-frame score
     batch, features = make_batch()
     rollouts = batch["rollouts"]
     assert float(rnd.error_scale) == 1.0 and (rnd.time_scale == 1.0).all()  # untrained: raw errors
@@ -526,6 +618,8 @@ def test_rnd_oe_calibrates_errors_by_the_training_successes_at_each_step():
 
 
 def test_rnd_oe_scores_the_running_max_of_errors_over_the_rollouts_own_start():
+    from aed_models.detectors.postprocess import OnlinePostprocess, postprocess
+
     rnd = tiny("rnd_oe")
     batch, features = make_batch()
     rnd.train()
@@ -535,14 +629,19 @@ def test_rnd_oe_scores_the_running_max_of_errors_over_the_rollouts_own_start():
     calibrated = rnd.calibrated(
         features[0], torch.arange(rollouts["mask"].shape[1]).expand_as(rollouts["mask"])
     )
-    scores = rnd.score(rollouts, batch["demos"], features)
+    scores = postprocess(rnd, rnd.score(rollouts, batch["demos"], features), rollouts["mask"])
+    online_max = OnlinePostprocess(rnd)
     for i, length in enumerate(rollouts["lengths"].tolist()):
         c = calibrated[i, :length].tolist()
         ratios = [c[t] / (sum(c[: min(t + 1, k)]) / min(t + 1, k)) for t in range(length)]
         expected = torch.tensor([max(ratios[: t + 1]) for t in range(length)])
         torch.testing.assert_close(scores[i, :length], expected, atol=1e-5, rtol=1e-5)
         rnd.reset(batch["demos"])
-        online = [rnd.step(None, (features[0][i, t], features[1][i, t])) for t in range(length)]
+        online_max.reset()
+        online = [
+            online_max(rnd.step(None, (features[0][i, t], features[1][i, t])))
+            for t in range(length)
+        ]
         torch.testing.assert_close(torch.tensor(online), scores[i, :length], atol=1e-5, rtol=0)
     assert (scores[:, 1:] >= scores[:, :-1])[rollouts["mask"][:, 1:]].all()
     with pytest.raises(ValueError, match="time_bin"):

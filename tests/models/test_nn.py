@@ -113,3 +113,28 @@ def test_checkpoint_errors_name_path_and_problem(tmp_path):
     ):
         load_checkpoint(good, family="detector", name="lstm_ed")
     assert issubclass(CheckpointError, ValueError)
+
+
+def test_check_sequences_returns_inputs_and_mask_or_names_what_is_wrong():
+    from aed_models.nn.batch import check_sequences
+
+    frames, features = torch.zeros(2, 3, 4, 8, 8), torch.zeros(2, 3, 5)
+    mask = torch.tensor([[1, 1, 0], [1, 1, 1]])
+    inputs, got = check_sequences({"frames": frames, "mask": mask}, "demos")
+    assert inputs is frames and got.dtype == torch.bool and torch.equal(got, mask.bool())
+    inputs, got = check_sequences({"features": features, "frames": frames}, "rollouts")
+    assert inputs is features and got.all() and got.shape == (2, 3)
+    inputs, _ = check_sequences({"features": features, "frames": frames}, "r", features=False)
+    assert inputs is frames
+    with pytest.raises(ValueError, match=r"demos: expected a dict with 'frames' .* or 'features'"):
+        check_sequences(None, "demos")
+    with pytest.raises(ValueError, match=r"x: expected a dict with 'frames' \(B, L, 4, H, W\), "):
+        check_sequences({"features": features}, "x", features=False)
+    with pytest.raises(ValueError, match=r"x\['frames'\] of shape \(2, 3, 3, 8, 8\)"):
+        check_sequences({"frames": torch.zeros(2, 3, 3, 8, 8)}, "x")
+    with pytest.raises(ValueError, match=r"x\['features'\] of shape \(2, 5\)"):
+        check_sequences({"features": torch.zeros(2, 5)}, "x")
+    with pytest.raises(ValueError, match=r"x\['mask'\] of shape \(2, 2\): expected \(2, 3\)"):
+        check_sequences({"frames": frames, "mask": mask[:, :2]}, "x")
+    with pytest.raises(ValueError, match="x: every sequence needs at least one frame"):
+        check_sequences({"frames": frames, "mask": torch.tensor([[0, 1, 1], [1, 1, 1]])}, "x")

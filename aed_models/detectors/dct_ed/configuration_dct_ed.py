@@ -17,8 +17,7 @@ class DCTEDConfig(VisualDetectorConfig):
     Args:
         num_heads: attention heads (feature_dim must be divisible by it).
         encoder_layers, decoder_layers: layer counts.
-        ff_dim: feed-forward width (paper profile 768: ~3.2M on top of the head, 14.5M in
-            all, as the paper's 14.49M).
+        ff_dim: feed-forward width (768 under paper, which gives the paper's parameter count).
         attn_dropout: dropout inside the transformer layers.
         norm_eps: LayerNorm epsilon.
     """

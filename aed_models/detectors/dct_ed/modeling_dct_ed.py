@@ -1,111 +1,43 @@
 """DCTED: a DCT-style transformer error detector (after Dance et al. 2021).
 
-Demonstration frames (all demonstrations, with sinusoidal time encodings) go through a
-transformer encoder (cross-demonstration attention); the rollout's frames go through a causal
-decoder whose self-attention sees the rollout so far and whose cross-attention reads the
-encoded demonstrations (rollout-demonstration attention); a linear head gives each frame's
-error probability.
-
-Online, the decoder runs one frame at a time with each layer's self-attention keys and values
-cached, and the demonstrations' cross-attention keys and values computed once at `reset`:
-a step does one frame's worth of projections plus one attention row over the cached keys,
-exactly what the batched causal pass computes for that frame. Layers are post-norm, as
-PyTorch's `nn.Transformer`.
+An encoder attends across all demonstration frames; a causal decoder over the rollout attends
+to them; a linear head gives each frame's error probability. Both use the shared blocks of
+`aed_models.nn.attention` (as the DCT policy does), so online a step reuses cached keys and
+values and equals the batched pass.
 """
 
 from __future__ import annotations
 
-import math
+import re
 from typing import Any
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
-from aed_models.detectors.base import Batch, ErrorDetector, check_frame, demo_mask, rollout_mask
+from aed_models.detectors.base import (
+    Batch,
+    ErrorDetector,
+    check_demos,
+    check_frame,
+    rollout_frames,
+    rollout_mask,
+)
 from aed_models.detectors.dct_ed.configuration_dct_ed import DCTEDConfig
 from aed_models.losses import masked_bce
+from aed_models.nn.attention import DecoderLayer, EncoderLayer, KVCache, sinusoid
 
 KV = tuple[torch.Tensor, torch.Tensor]
+# Checkpoints written before DCTED used the shared blocks named the projections in full.
+_OLD_PROJECTION = re.compile(r"\.(attn|self_attn|cross_attn)\.(query|key|value)\.")
+_SHORT = {"query": "q", "key": "k", "value": "v"}
 
 
-def sinusoid(positions: torch.Tensor, dim: int) -> torch.Tensor:
-    """(...,) integer positions -> (..., dim) sinusoidal encodings (Vaswani et al.)."""
-    half = dim // 2
-    freqs = torch.exp(
-        -math.log(10000.0)
-        * torch.arange(half, dtype=torch.float32, device=positions.device)
-        / max(half, 1)
-    )
-    angles = positions.to(torch.float32)[..., None] * freqs
-    out = torch.cat([angles.sin(), angles.cos()], dim=-1)
-    return F.pad(out, (0, dim - 2 * half))
-
-
-class Attention(nn.Module):
-    """Multi-head attention whose key/value projections can be computed once and reused."""
-
-    def __init__(self, dim: int, heads: int, dropout: float):
-        super().__init__()
-        self.heads, self.dropout = heads, dropout
-        self.query, self.key, self.value, self.out = (nn.Linear(dim, dim) for _ in range(4))
-
-    def _split(self, x: torch.Tensor) -> torch.Tensor:
-        b, n, d = x.shape
-        return x.view(b, n, self.heads, d // self.heads).transpose(1, 2)
-
-    def keys_values(self, source: torch.Tensor) -> KV:
-        return self._split(self.key(source)), self._split(self.value(source))
-
-    def forward(
-        self, x: torch.Tensor, kv: KV, mask: torch.Tensor | None = None, causal: bool = False
-    ) -> torch.Tensor:
-        q = self._split(self.query(x))
-        p = self.dropout if self.training else 0.0
-        out = F.scaled_dot_product_attention(
-            q, kv[0], kv[1], attn_mask=mask, dropout_p=p, is_causal=causal
-        )
-        b, h, n, dh = out.shape
-        return self.out(out.transpose(1, 2).reshape(b, n, h * dh))
-
-
-class FeedForward(nn.Sequential):
-    def __init__(self, dim: int, hidden: int, dropout: float):
-        super().__init__(
-            nn.Linear(dim, hidden), nn.ReLU(), nn.Dropout(dropout), nn.Linear(hidden, dim)
-        )
-
-
-class EncoderLayer(nn.Module):
-    def __init__(self, c: DCTEDConfig):
-        super().__init__()
-        d = c.feature_dim
-        self.attn = Attention(d, c.num_heads, c.attn_dropout)
-        self.ff = FeedForward(d, c.ff_dim, c.attn_dropout)
-        self.norm1, self.norm2 = nn.LayerNorm(d, eps=c.norm_eps), nn.LayerNorm(d, eps=c.norm_eps)
-        self.drop = nn.Dropout(c.attn_dropout)
-
-    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        x = self.norm1(x + self.drop(self.attn(x, self.attn.keys_values(x), mask)))
-        return self.norm2(x + self.drop(self.ff(x)))
-
-
-class DecoderLayer(nn.Module):
-    def __init__(self, c: DCTEDConfig):
-        super().__init__()
-        d = c.feature_dim
-        self.self_attn = Attention(d, c.num_heads, c.attn_dropout)
-        self.cross_attn = Attention(d, c.num_heads, c.attn_dropout)
-        self.ff = FeedForward(d, c.ff_dim, c.attn_dropout)
-        self.norm1, self.norm2, self.norm3 = (nn.LayerNorm(d, eps=c.norm_eps) for _ in range(3))
-        self.drop = nn.Dropout(c.attn_dropout)
-
-    def forward(
-        self, x: torch.Tensor, self_kv: KV, memory_kv: KV, memory_mask: torch.Tensor, causal: bool
-    ) -> torch.Tensor:
-        x = self.norm1(x + self.drop(self.self_attn(x, self_kv, causal=causal)))
-        x = self.norm2(x + self.drop(self.cross_attn(x, memory_kv, memory_mask)))
-        return self.norm3(x + self.drop(self.ff(x)))
+def rename_old_keys(state_dict: dict[str, Any]) -> dict[str, Any]:
+    """Old DCTED keys (`...attn.query.weight`) renamed as the shared blocks name them (`q`)."""
+    return {
+        _OLD_PROJECTION.sub(lambda m: f".{m[1]}.{_SHORT[m[2]]}.", key): value
+        for key, value in state_dict.items()
+    }
 
 
 class DCTED(ErrorDetector):
@@ -119,22 +51,32 @@ class DCTED(ErrorDetector):
         config = config or DCTEDConfig()
         super().__init__(config)
         self.encoder = build_visual_head(config.visual_head_config())
-        self.demo_layers = nn.ModuleList(EncoderLayer(config) for _ in range(config.encoder_layers))
+        sizes = (
+            config.feature_dim,
+            config.num_heads,
+            config.ff_dim,
+            config.attn_dropout,
+            config.norm_eps,
+        )
+        self.demo_layers = nn.ModuleList(EncoderLayer(*sizes) for _ in range(config.encoder_layers))
         self.rollout_layers = nn.ModuleList(
-            DecoderLayer(config) for _ in range(config.decoder_layers)
+            DecoderLayer(*sizes) for _ in range(config.decoder_layers)
         )
         self.classifier = nn.Linear(config.feature_dim, 1)
         self._memory: list[KV] | None = None
         self._memory_mask: torch.Tensor | None = None
-        self._cache: list[KV] = []
+        self._cache: list[KVCache] = []
         self._t = 0
+
+    def upgrade_state_dict(self, state_dict: dict[str, Any]) -> dict[str, Any]:
+        return rename_old_keys(state_dict)
 
     # -- demonstrations -----------------------------------------------------------------------
     def encode_demos(self, demos: Batch) -> tuple[torch.Tensor, torch.Tensor]:
         """(1, N L, D) encoded demonstration tokens and their (1, 1, 1, N L) attention mask."""
         from aed_models.nn import encode_frames
 
-        frames, mask = demo_mask(demos, self.name)
+        frames, mask = check_demos(demos, self.name)
         n, length = mask.shape
         tokens = encode_frames(self.encoder, frames, mask) + sinusoid(
             torch.arange(length, device=frames.device), self.config.feature_dim
@@ -148,23 +90,20 @@ class DCTED(ErrorDetector):
         """Each decoder layer's cross-attention keys/values over the demonstrations, and the
         mask."""
         tokens, mask = self.encode_demos(demos)
-        return [layer.cross_attn.keys_values(tokens) for layer in self.rollout_layers], mask
+        return [layer.cross_attn.project_kv(tokens) for layer in self.rollout_layers], mask
 
     # -- rollouts -----------------------------------------------------------------------------
     def _logits(self, rollouts: Batch, demos: Batch) -> torch.Tensor:
         from aed_models.nn import encode_frames
 
-        mask = rollout_mask(rollouts)
+        frames, mask = rollout_frames(rollouts)
         memory, memory_mask = self.memory(demos)
-        x = encode_frames(self.encoder, rollouts["frames"], mask)
+        x = encode_frames(self.encoder, frames, mask)
         x = x + sinusoid(torch.arange(x.shape[1], device=x.device), self.config.feature_dim)
         b = x.shape[0]
         for layer, (k, v) in zip(self.rollout_layers, memory, strict=True):
-            kv = (
-                k.expand(b, -1, -1, -1),
-                v.expand(b, -1, -1, -1),
-            )  # one environment's demos for all
-            x = layer(x, layer.self_attn.keys_values(x), kv, memory_mask, causal=True)
+            # one environment's demonstrations for every rollout
+            x = layer(x, (k.expand(b, -1, -1, -1), v.expand(b, -1, -1, -1)), memory_mask)
         return self.classifier(x).squeeze(-1)
 
     def loss(
@@ -185,7 +124,7 @@ class DCTED(ErrorDetector):
     @torch.no_grad()
     def reset(self, demos: Batch | None = None) -> None:
         self._memory, self._memory_mask = self.memory(demos)
-        self._cache = []
+        self._cache = [KVCache() for _ in self.rollout_layers]
         self._t = 0
 
     @torch.no_grad()
@@ -193,18 +132,7 @@ class DCTED(ErrorDetector):
         self._require_reset(self._memory)
         x = self.encoder(check_frame(frame, self.name))[:, None]
         x = x + sinusoid(torch.tensor([self._t], device=x.device), self.config.feature_dim)
-        for i, (layer, kv) in enumerate(zip(self.rollout_layers, self._memory, strict=True)):
-            k, v = layer.self_attn.keys_values(x)
-            if i < len(self._cache):
-                k, v = (
-                    torch.cat([self._cache[i][0], k], dim=2),
-                    torch.cat([self._cache[i][1], v], dim=2),
-                )
-                self._cache[i] = (k, v)
-            else:
-                self._cache.append((k, v))
-            x = layer(
-                x, (k, v), kv, self._memory_mask, causal=False
-            )  # the newest frame sees all cached ones
+        for layer, kv, cache in zip(self.rollout_layers, self._memory, self._cache, strict=True):
+            x = layer(x, kv, self._memory_mask, cache)
         self._t += 1
         return float(torch.sigmoid(self.classifier(x))[0, 0, 0])

@@ -14,8 +14,7 @@ class LSTMEDConfig(VisualDetectorConfig):
     """LSTMED: visual head -> LSTM -> MLP, no demonstrations.
 
     Args:
-        hidden_dim: LSTM state size (paper profile 256: ~0.54M on top of the head, 11.85M in
-            all as in the paper).
+        hidden_dim: LSTM state size (256 under paper, which gives the paper's parameter count).
         num_layers: stacked LSTM layers.
         head_dim: hidden size of the classifier after the LSTM.
     """

@@ -11,7 +11,13 @@ from typing import Any
 import torch
 from torch import nn
 
-from aed_models.detectors.base import Batch, ErrorDetector, check_frame, rollout_mask
+from aed_models.detectors.base import (
+    Batch,
+    ErrorDetector,
+    check_frame,
+    rollout_frames,
+    rollout_mask,
+)
 from aed_models.detectors.lstm_ed.configuration_lstm_ed import LSTMEDConfig
 from aed_models.losses import masked_bce
 from aed_models.nn.mlp import mlp
@@ -39,7 +45,7 @@ class LSTMED(ErrorDetector):
     def _logits(self, rollouts: Batch) -> torch.Tensor:
         from aed_models.nn import encode_frames
 
-        feats = encode_frames(self.encoder, rollouts["frames"], rollout_mask(rollouts))
+        feats = encode_frames(self.encoder, *rollout_frames(rollouts))
         out, _ = self.lstm(feats)  # padding comes after the valid frames: it never reaches them
         return self.classifier(out).squeeze(-1)
 

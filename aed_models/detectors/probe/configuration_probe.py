@@ -11,22 +11,17 @@ from aed_models.recipe import check_profile
 
 @dataclass
 class ProbeConfig(DetectorConfig):
-    """PrObe's sizes and objective weights.
-
-    The paper gives the architecture and the three objectives but not the weights, margin or
-    clipping; the defaults below are ours. With the paper's policy features (Dh = Dz = 256)
-    and `hidden_dim=256`, PrObe has about 0.69M parameters (paper: 0.65M).
+    """PrObe's sizes and objective weights (the paper gives no weights, margin or clipping:
+    these defaults are ours).
 
     Args:
         history_dim, task_dim: sizes of the policy's f_h and f_zeta (set from the policy).
-        hidden_dim: LSTM (pattern flow) and transformed task-embedding size.
-        embed_dim: size of the logit embedding (fusion output) that L_tem acts on.
-        use_pattern_extractor: False gives the ablation's "naive" model: FC + instance norm
-            on f_h instead of unit-norm, gate and sign.
+        hidden_dim, embed_dim: pattern-flow LSTM and task-transform size; logit-embedding size.
+        use_pattern_extractor: False: the ablation's naive model (FC + instance norm on f_h).
         lambda_cls, lambda_pat, lambda_tem: weights of L_cls, L_pat, L_tem (0 switches one off).
-        margin: m of the triplet loss.
-        alpha: how much temporal distance moves the margin, m_t = m (1 - alpha (d_ap - d_an)).
-        clip: temporal distances (as fractions of the rollout's length) are clipped here.
+        margin, alpha: the triplet margin m and how temporal distance moves it,
+            m_t = m (1 - alpha (d_ap - d_an)).
+        clip: temporal distances (fractions of the rollout's length) are clipped here.
         triplets_per_rollout: anchors sampled in each failed rollout per iteration.
         norm_eps: epsilon of the unit-norm and instance norms.
     """

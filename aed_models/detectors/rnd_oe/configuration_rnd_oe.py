@@ -15,20 +15,15 @@ class RNDOEConfig(DetectorConfig):
 
     Args:
         history_dim: size of the policy's f_h (set from the policy).
-        hidden_dim: hidden width of the target and predictor MLPs.
-        out_dim: size of the random target's output.
-        scale_momentum: momentum of the running means of the training (success) error that
-            errors are divided by, so that ~1 means "as familiar as training successes".
+        hidden_dim, out_dim: hidden width of the target and predictor MLPs; the target's output.
+        scale_momentum: momentum of the running mean training (success) error that errors are
+            divided by (~1: as familiar as training successes).
         norm_eps: epsilon of the unit norm of f_h and of the whitening.
         input_clip: whitened inputs are clipped to +-input_clip (RND's 5).
-        time_bin: steps per bin of the time-varying calibration: an error at step t is divided
-            by the training successes' mean error in t's bin; 0 = one mean for every step.
+        time_bin: steps per calibration bin (0: one bin for every step).
         max_steps: steps the calibration table covers; later steps use its last bin.
-        baseline_steps: the calibrated error is divided by its mean over the rollout's own
-            first `baseline_steps` frames (the new environment's familiarity, before any
-            error); 0 = no baseline.
-        running_max: score the running maximum over the frames so far (an error, once seen,
-            persists: a rollout that has left the successes' states stays flagged).
+        baseline_steps: the error is divided by its mean over the rollout's own first frames
+            (how new the environment is, before any error); 0 = no baseline.
     """
 
     mini_epochs: ClassVar[int] = 30
@@ -42,7 +37,6 @@ class RNDOEConfig(DetectorConfig):
     time_bin: int = 5
     max_steps: int = 400
     baseline_steps: int = 10
-    running_max: bool = True
 
     def __post_init__(self) -> None:
         for name in ("history_dim", "hidden_dim", "out_dim", "norm_eps", "input_clip", "max_steps"):

@@ -1,31 +1,11 @@
 """RND-OE: random network distillation on the frozen policy's history features f_h.
 
-A fixed, randomly initialised target MLP maps each f_h[t] to a vector; a predictor MLP learns
-to reproduce it on the frames of *successful* rollouts only. Where the policy's internal state
-looks like the successes it was fitted on, the prediction error is small; unfamiliar states (a
-behaviour error, a new failure mode) give a large error. No failure data is needed.
-
-Input normalisation (as in Burda et al.'s RND): f_h is unit-normalised, then whitened per
-dimension by the running mean and variance of the training frames and clipped to +-5. Without
-it the target is near constant: a policy's f_h of different frames point in almost the same
-direction, the random target maps them all to nearly one vector, and the predictor learns that
-vector and nothing about the frames.
-
-Score: the raw error alone is a weak failure signal on held-out environments: a new
-environment makes every frame unfamiliar, and the error drifts with the step. Three
-failure-free corrections, each switchable:
-
-1. time-varying calibration (as FAIL-Detect's): the error at step t is divided by the running
-   mean training error of success frames in t's `time_bin`-step bin (buffers saved with the
-   weights), so ~1 means "as familiar as training successes at this step";
-2. the rollout's own baseline: divided again by the mean calibrated error of the rollout's first
-   `baseline_steps` frames (the policy is on track at the start; what is left measures how far
-   the rollout has drifted since, not how new the environment is);
-3. a running maximum: failure frames run from the error's onset to the end, so a departure,
-   once seen, stays in the score.
-
-Online this is O(1) per step: a step counter, the baseline's sum and the maximum so far. It is
-a distance (`output = "distance"`), unbounded above.
+A predictor learns a fixed random target's output on the f_h of successful rollouts only, so
+its error is small where the policy's state looks like those successes: no failure data is
+needed. Inputs are unit-normalised, whitened and clipped (as Burda et al.'s RND), else the
+target is near constant. The per-frame error is divided by the training successes' mean error
+in the step's time bin and by the rollout's own first `baseline_steps` frames, so what is left
+is the drift since the start, not how new the environment is. Online a step is O(1).
 """
 
 from __future__ import annotations
@@ -38,7 +18,6 @@ from aed_models.detectors.base import (
     Batch,
     ErrorDetector,
     rollout_mask,
-    running_max,
     split_features,
     steps_of,
 )
@@ -50,6 +29,7 @@ class RNDOE(ErrorDetector):
     requires_policy = True
     output = "distance"
     trains_on = "successes"
+    memoryless = True
 
     def __init__(self, config: RNDOEConfig | None = None):
         config = config or RNDOEConfig()
@@ -69,7 +49,7 @@ class RNDOE(ErrorDetector):
         self.register_buffer("input_mean", torch.zeros(c.history_dim))
         self.register_buffer("input_var", torch.ones(c.history_dim))
         self._step_scale: torch.Tensor | None = None  # time_scale, fixed at reset(); None before
-        self._t, self._baseline_sum, self._max = 0, 0.0, 0.0
+        self._t, self._baseline_sum = 0, 0.0
 
     def _unit(self, history: torch.Tensor) -> torch.Tensor:
         if history.shape[-1] != self.config.history_dim:
@@ -185,13 +165,11 @@ class RNDOE(ErrorDetector):
             first = positions.clamp(max=k - 1)  # the baseline's last frame so far
             baseline = torch.cumsum(score, dim=1)[:, first] / (first + 1)
             score = score / baseline.clamp(min=1e-12)
-        if self.config.running_max:
-            score = running_max(score, mask)
         return score * mask
 
     def reset(self, demos: Batch | None = None) -> None:
         self._step_scale = self.time_scale
-        self._t, self._baseline_sum, self._max = 0, 0.0, 0.0
+        self._t, self._baseline_sum = 0, 0.0
 
     @torch.no_grad()
     def step(
@@ -208,7 +186,5 @@ class RNDOE(ErrorDetector):
             if self._t < k:
                 self._baseline_sum += score
             score = score / max(self._baseline_sum / min(self._t + 1, k), 1e-12)
-        if self.config.running_max:
-            score = self._max = max(self._max, score)  # ratios are >= 0: 0 is a neutral start
         self._t += 1
         return score

@@ -13,29 +13,19 @@ CENTRES = ("aligned", "all")
 
 @dataclass
 class SVDDEDConfig(VisualDetectorConfig):
-    """SVDDED: the visual head alone (paper profile: resnet18 + FC 256, ~11.3M parameters).
+    """SVDDED: the visual head alone (paper profile: resnet18 + FC 256).
 
     Args:
-        dropout: 0, unlike the other heads (0.5): dropout's noise on the embedding is a floor
-            under the distance (for p = 0.5 its expected square is ||z||^2, the size of the
-            whole scale-free distance). Ruff et al.'s networks have no dropout.
-        centre: `aligned` (default): the centre of frame t is the mean of the demonstrations'
-            embeddings at step t (each demonstration held at its last frame once it has ended);
-            `all`: one centre, the mean of every demonstration frame (the paper's wording),
-            which is as far from a normal frame of one stage as from a wrong one.
-        window: `aligned`: frame t is measured against the nearest of the centres of steps
-            t - window .. t + window: the agents run slower than the demonstrations, so step t
-            of a rollout is not step t of a demo.
-        running_max: score the running maximum of the distance over the frames so far, the
-            farthest the rollout has been from the demonstrations
-            (`aed_models.detectors.base.running_max`: a single-frame detector cannot learn that
-            an error persists).
+        dropout: 0, as Ruff et al.: dropout's noise on the embedding is a floor under the
+            scale-free distance about as large as the distance itself.
+        centre: `aligned`: frame t's centre is the demonstrations' mean embedding at step t;
+            `all`: the mean of every demonstration frame (the paper's wording), as far from a
+            normal frame of one stage as from a wrong one.
+        window: `aligned`: the nearest centre of steps t - window .. t + window (rollouts run at
+            their own pace).
         eps: added to the centres' mean squared norm in the scale-free distance.
-        variance_weight: weight of a variance floor on the embeddings (VICReg's hinge on each
-            dimension's standard deviation over the iteration's frames, target 1; 25 as VICReg's
-            variance coefficient): without it the small CNN collapses (its convolutions driven
-            to zero, the spatial softmax uniform, every frame the same keypoints), which frozen
-            biases do not prevent. 0 switches it off.
+        variance_weight: weight of VICReg's variance hinge on the embeddings, without which the
+            small CNN collapses to one point (frozen biases do not prevent it); 0: off.
     """
 
     mini_epochs: ClassVar[int] = 50
@@ -44,7 +34,6 @@ class SVDDEDConfig(VisualDetectorConfig):
     dropout: float = 0.0
     centre: str = "aligned"
     window: int = 10
-    running_max: bool = True
     eps: float = 1e-6
     variance_weight: float = 25.0
 

@@ -1,23 +1,11 @@
 """SVDDED: deep one-class SVDD (Ruff et al. 2018) centred on the demonstrations.
 
-Each frame is embedded by a visual head; the centre is the mean embedding of the environment's
-demonstration frames; the score of a frame is its distance to the centre. Training pulls the
-frames of successful rollouts towards it (no failures seen). With `centre="aligned"` (the
-default) the centre follows the demonstrations in time: frame t is measured against the mean
-of the demonstrations' embeddings at step t (the nearest of those within `window` steps, as
-rollouts run slower or faster than the demonstrations), so a normal frame of one stage is not
-compared with the average of every stage (see `SVDDEDConfig.centre`). The score is the running
-maximum of that distance (`SVDDEDConfig.running_max`): an error, once seen, persists.
-
-Against the trivial collapse (every frame mapped to one point, distance 0 for all):
-
-- no bias terms (Ruff et al.): every bias of the head (FC, conv, normalisation shifts) is set
-  to 0 and frozen, so a constant output can only come from all-zero weights;
-- the centre is a fixed target per iteration (detached), as Ruff et al. fix c;
-- the distance is scale-free, ||z - c||^2 / (||c||^2 + eps): shrinking the embedding towards
-  zero does not lower the loss;
-- a variance floor (`SVDDEDConfig.variance_weight`): with a spatial-softmax head, zero
-  convolutions give every frame the same keypoints, a constant embedding without any bias.
+A frame's score is the scale-free distance of its embedding to the demonstrations' centre,
+which follows the demonstrations in time (`SVDDEDConfig.centre`); training pulls successful
+frames towards it, no failure seen. Against the trivial collapse (every frame on one point):
+no trainable biases (Ruff et al.), a detached centre per iteration, a scale-free distance and a
+variance floor on the embeddings. Memoryless: the protocol reads the running maximum of the
+distance (`aed_models.detectors.postprocess`).
 """
 
 from __future__ import annotations
@@ -29,10 +17,9 @@ import torch
 from aed_models.detectors.base import (
     Batch,
     ErrorDetector,
+    check_demos,
     check_frame,
-    demo_mask,
-    rollout_mask,
-    running_max,
+    rollout_frames,
     steps_of,
 )
 from aed_models.detectors.svdd_ed.configuration_svdd_ed import SVDDEDConfig
@@ -42,6 +29,7 @@ class SVDDED(ErrorDetector):
     requires_policy = False
     output = "distance"
     trains_on = "successes"
+    memoryless = True
 
     def __init__(self, config: SVDDEDConfig | None = None):
         from aed_models.nn import build_visual_head
@@ -54,7 +42,7 @@ class SVDDED(ErrorDetector):
                 param.data.zero_()
                 param.requires_grad_(False)
         self._centres: torch.Tensor | None = None
-        self._t, self._max = 0, 0.0
+        self._t = 0
 
     def centres(self, demos: Batch) -> torch.Tensor:
         """(S, D) centres: row t is the centre of frame t (frames past S - 1 use the last row).
@@ -66,7 +54,7 @@ class SVDDED(ErrorDetector):
         """
         from aed_models.nn import encode_frames
 
-        frames, mask = demo_mask(demos, self.name)
+        frames, mask = check_demos(demos, self.name)
         embeddings = encode_frames(self.encoder, frames, mask)
         if self.config.centre == "all":
             return embeddings[mask].mean(0, keepdim=True)
@@ -103,7 +91,7 @@ class SVDDED(ErrorDetector):
         from aed_models.nn import encode_frames
 
         rollouts = batch["rollouts"]
-        mask = rollout_mask(rollouts)
+        frames, mask = rollout_frames(rollouts)
         if "is_failure" in rollouts:
             mask = mask & ~rollouts["is_failure"].bool()[:, None]
         if not mask.any():
@@ -112,7 +100,7 @@ class SVDDED(ErrorDetector):
             )
         with torch.no_grad():  # a fixed target per iteration, as Ruff et al. fix c
             centres = self.centres(batch["demos"])
-        embeddings = encode_frames(self.encoder, rollouts["frames"], mask)[mask]
+        embeddings = encode_frames(self.encoder, frames, mask)[mask]
         svdd = self.distance(embeddings, steps_of(rollouts, mask)[mask], centres).mean()
         parts = {"svdd": float(svdd.detach())}
         loss = svdd
@@ -128,21 +116,18 @@ class SVDDED(ErrorDetector):
     ) -> torch.Tensor:
         from aed_models.nn import encode_frames
 
-        mask = rollout_mask(rollouts)
-        embeddings = encode_frames(self.encoder, rollouts["frames"], mask)
-        distances = self.distance(embeddings, steps_of(rollouts, mask), self.centres(demos)) * mask
-        return running_max(distances, mask) if self.config.running_max else distances
+        frames, mask = rollout_frames(rollouts)
+        embeddings = encode_frames(self.encoder, frames, mask)
+        return self.distance(embeddings, steps_of(rollouts, mask), self.centres(demos)) * mask
 
     @torch.no_grad()
     def reset(self, demos: Batch | None = None) -> None:
-        self._centres, self._t, self._max = self.centres(demos), 0, 0.0
+        self._centres, self._t = self.centres(demos), 0
 
     @torch.no_grad()
     def step(self, frame: torch.Tensor | None = None, policy_features: Any = None) -> float:
         self._require_reset(self._centres)
         embedding = self.encoder(check_frame(frame, self.name))[0]
         score = float(self.distance(embedding, torch.tensor(self._t), self._centres))
-        if self.config.running_max:
-            score = self._max = max(self._max, score)  # distances are >= 0: 0 is a neutral start
         self._t += 1
         return score

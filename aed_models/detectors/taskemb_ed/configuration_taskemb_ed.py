@@ -14,18 +14,14 @@ class TaskEmbEDConfig(VisualDetectorConfig):
     """TaskEmbED: visual head + MLP on [frame feature, task embedding (2 x feature_dim)].
 
     Args:
-        hidden_dims: the classifier MLP's hidden sizes (paper profile: 256, 64, giving ~0.2M
-            parameters on top of the head: 11.5M in all, as the paper's 11.52M).
-        running_max: score the running maximum of the error probability over the frames so
-            far (`aed_models.detectors.base.running_max`: a single-frame detector cannot learn
-            that an error persists).
+        hidden_dims: the classifier MLP's hidden sizes ((256, 64) under paper, which gives the
+            paper's parameter count).
     """
 
     mini_epochs: ClassVar[int] = 150
     mini_max_frames: ClassVar[int] = 8
 
     hidden_dims: tuple[int, ...] = (256, 64)
-    running_max: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -2,8 +2,8 @@
 
 Task embedding (NaiveDC, James et al. 2018): per demonstration, the features of its first
 and last frames concatenated, averaged over the demonstrations. No temporal information: the
-probability of a frame depends on that frame and the demonstrations only; the score is its
-running maximum over the frames so far (`TaskEmbEDConfig.running_max`).
+probability of a frame depends on that frame and the demonstrations only. Memoryless: the
+protocol reads the running maximum of the probability (`aed_models.detectors.postprocess`).
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ import torch
 from aed_models.detectors.base import (
     Batch,
     ErrorDetector,
+    check_demos,
     check_frame,
-    demo_mask,
+    rollout_frames,
     rollout_mask,
-    running_max,
 )
 from aed_models.detectors.taskemb_ed.configuration_taskemb_ed import TaskEmbEDConfig
 from aed_models.losses import masked_bce
@@ -29,6 +29,7 @@ class TaskEmbED(ErrorDetector):
     requires_policy = False
     output = "probability"
     trains_on = "both"
+    memoryless = True
 
     def __init__(self, config: TaskEmbEDConfig | None = None):
         from aed_models.nn import build_visual_head
@@ -38,11 +39,10 @@ class TaskEmbED(ErrorDetector):
         self.encoder = build_visual_head(config.visual_head_config())
         self.classifier = mlp([3 * config.feature_dim, *config.hidden_dims], out_dim=1)
         self._task: torch.Tensor | None = None
-        self._max = 0.0
 
     def task_embedding(self, demos: Batch) -> torch.Tensor:
         """(2 D,) mean over demonstrations of [first frame feature, last frame feature]."""
-        frames, mask = demo_mask(demos, self.name)
+        frames, mask = check_demos(demos, self.name)
         n = frames.shape[0]
         last = mask.long().sum(1) - 1
         ends = torch.cat(
@@ -58,9 +58,8 @@ class TaskEmbED(ErrorDetector):
     def _batch_logits(self, rollouts: Batch, demos: Batch) -> torch.Tensor:
         from aed_models.nn import encode_frames
 
-        mask = rollout_mask(rollouts)
         return self.logits(
-            encode_frames(self.encoder, rollouts["frames"], mask), self.task_embedding(demos)
+            encode_frames(self.encoder, *rollout_frames(rollouts)), self.task_embedding(demos)
         )
 
     def loss(
@@ -77,18 +76,14 @@ class TaskEmbED(ErrorDetector):
         self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None
     ) -> torch.Tensor:
         mask = rollout_mask(rollouts)
-        probabilities = torch.sigmoid(self._batch_logits(rollouts, demos)) * mask
-        return running_max(probabilities, mask) if self.config.running_max else probabilities
+        return torch.sigmoid(self._batch_logits(rollouts, demos)) * mask
 
     @torch.no_grad()
     def reset(self, demos: Batch | None = None) -> None:
-        self._task, self._max = self.task_embedding(demos), 0.0
+        self._task = self.task_embedding(demos)
 
     @torch.no_grad()
     def step(self, frame: torch.Tensor | None = None, policy_features: Any = None) -> float:
         self._require_reset(self._task)
         feats = self.encoder(check_frame(frame, self.name))
-        probability = float(torch.sigmoid(self.logits(feats, self._task))[0])
-        if self.config.running_max:
-            probability = self._max = max(self._max, probability)
-        return probability
+        return float(torch.sigmoid(self.logits(feats, self._task))[0])

@@ -1,0 +1,40 @@
+"""Offline scoring post-processes each detector's per-frame scores as the online monitor does."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import torch
+
+import aed_models.data
+from aed_eval.scoring import EpisodeScorer, LoadedDetector
+from tests.models.test_detectors import make_batch, tiny
+
+
+class NoReader:
+    def read(self, ref):
+        return ref
+
+    def close(self) -> None:
+        pass
+
+
+def test_episode_scorer_takes_the_running_max_of_detectors_without_memory(monkeypatch):
+    batch, _ = make_batch(seed=3)
+    rollout = {k: v[2:3] for k, v in batch["rollouts"].items()}  # one rollout of 8 frames
+    monkeypatch.setattr(aed_models.data, "pad_sequences", lambda seqs: rollout)
+    detectors = [
+        LoadedDetector(name, tiny(name).eval(), Path(name)) for name in ("svdd_ed", "lstm_ed")
+    ]
+    scorer = EpisodeScorer(detectors, policy=None, demos={0: batch["demos"]})
+    scorer.reader.close()
+    scorer.reader = NoReader()
+    scores = scorer.score(SimpleNamespace(env_index=0, path=Path("shard.h5"), traj="traj_0"))
+    per_frame = {d.name: d.model.score(rollout, batch["demos"])[0] for d in detectors}
+    assert not torch.equal(per_frame["svdd_ed"], torch.cummax(per_frame["svdd_ed"], 0).values)
+    np.testing.assert_allclose(
+        scores["svdd_ed"], torch.cummax(per_frame["svdd_ed"], 0).values.double().numpy()
+    )
+    np.testing.assert_allclose(scores["lstm_ed"], per_frame["lstm_ed"].double().numpy())
