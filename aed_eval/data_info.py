@@ -123,14 +123,15 @@ def _pairs(counts: dict[str, int]) -> str:
 
 def data_info(
     path: tyro.conf.Positional[Path],
-    check: Literal["quick", "full"] = "quick",
+    check: Literal["size", "quick", "full"] = "quick",
     as_json: bool = False,
 ) -> int:
     """Summarise a collection: counts by role, environment, error kind; lengths; disk size.
 
     Args:
         path: the collection folder (as written by `aed collect`).
-        check: quick (structure and sizes) or full (also every h5's sha256).
+        check: size (structure and sizes only), quick or full (also every h5's sha256; the
+            same in one command).
         as_json: print JSON instead of a table.
     """
     info = summarize(path, check)

@@ -13,8 +13,13 @@ seconds) and feeds it jobs. A runner is made by a picklable factory, e.g.
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import os
+import signal
+import sys
+import threading
+import time
 from collections.abc import Callable, Sequence
 from typing import Any, Literal, Protocol
 
@@ -120,9 +125,39 @@ def share_cores(threads: int) -> None:
 _WORKER: dict[str, Any] = {}
 
 
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def die_with_parent(parent: int, poll_s: float = 1.0) -> None:
+    """End this worker when `parent` ends, so that no orphan keeps committing shards after its
+    run was killed (and the user restarted it).
+
+    Linux: the kernel sends SIGKILL on the parent's death (prctl PR_SET_PDEATHSIG). Everywhere,
+    a daemon thread also checks the parent every `poll_s` seconds (it covers other systems, and
+    a parent thread, not process, that ended: the prctl signal follows the thread).
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
+                logger.debug("prctl(PR_SET_PDEATHSIG) failed: errno %d", ctypes.get_errno())
+        except (OSError, AttributeError) as e:
+            logger.debug("no prctl: %s", e)
+    if os.getppid() != parent:  # the parent died before the request took effect
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="aed-parent-watch", daemon=True).start()
+
+
 def _init_worker(
-    make_runner: Callable[[], Runner], ticks: Any, log_level: int, threads: int
+    make_runner: Callable[[], Runner], ticks: Any, log_level: int, threads: int, parent: int
 ) -> None:
+    die_with_parent(parent)
     setup_logging(log_level)
     share_cores(threads)
     _WORKER["runner"] = make_runner()
@@ -154,7 +189,7 @@ def _execute_pool(
         workers,
         mp_context=ctx,
         initializer=_init_worker,
-        initargs=(make_runner, ticks, level, threads),
+        initargs=(make_runner, ticks, level, threads, os.getpid()),
     ) as pool:
         pending = {pool.submit(_run_in_worker, job) for job in jobs}
         try:

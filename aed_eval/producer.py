@@ -20,6 +20,7 @@ from typing import Any, Protocol
 from aed_eval.executors import execute
 from aed_tasks import trajectory
 from aed_tasks.episode import Episode
+from aed_tasks.locks import folder_lock
 
 logger = logging.getLogger(__name__)
 
@@ -114,14 +115,8 @@ class EpisodeRunner:
         )
 
 
-def prepare_folder(
-    out: Path, identity: dict[str, Any], config: dict[str, Any], shards: list[ShardPlan]
-) -> list[ShardPlan]:
-    """Check the folder (manifest, every committed shard) and return the shards still to run.
-
-    A corrupt or foreign file stops here with its name. A committed shard whose content differs
-    from the plan (e.g. another shard size) is an error too, never overwritten.
-    """
+def check_plan(out: Path, shards: list[ShardPlan]) -> None:
+    """Refuse an output that is a file, or a plan naming a shard twice (nothing is touched)."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: a file, not a folder")
@@ -131,6 +126,20 @@ def prepare_folder(
         raise ValueError(
             f"the plan names shards {repeated} more than once (an environment given twice?)"
         )
+
+
+def prepare_folder(
+    out: Path, identity: dict[str, Any], config: dict[str, Any], shards: list[ShardPlan]
+) -> list[ShardPlan]:
+    """Check the folder (manifest, every committed shard) and return the shards still to run.
+
+    The caller holds the folder's lock (`produce` does). A corrupt or foreign file stops here
+    with its name. A committed shard whose content differs from the plan (e.g. another shard
+    size) is an error too, never overwritten.
+    """
+    out = Path(out)
+    check_plan(out, shards)
+    stems = [s.stem for s in shards]
     out.mkdir(parents=True, exist_ok=True)
     manifest = trajectory.read_manifest(out)
     if manifest is not None:
@@ -186,9 +195,24 @@ def produce(
 ) -> ProductionSummary:
     """Record every planned shard of `cfg` (its out, identity, workers, executor) not committed yet.
 
-    `runner` (one worker only) reuses the envs of an earlier call; `runner_args` follow `cfg`
-    in every new runner's constructor.
+    The output folder is locked for the whole run: a second run over it is refused with the
+    first one's pid (`aed_tasks.locks`). `runner` (one worker only) reuses the envs of an
+    earlier call; `runner_args` follow `cfg` in every new runner's constructor.
     """
+    check_plan(Path(cfg.out), shards)
+    with folder_lock(cfg.out):  # one writer per folder, from the first check to the last commit
+        return _produce(cfg, shards, runner_type, desc, on_done, runner, runner_args)
+
+
+def _produce(
+    cfg: Any,
+    shards: list[ShardPlan],
+    runner_type: type[EpisodeRunner],
+    desc: str,
+    on_done: Callable[[ShardResult], None] | None,
+    runner: EpisodeRunner | None,
+    runner_args: Iterable[Any],
+) -> ProductionSummary:
     from tqdm.auto import tqdm
 
     todo = prepare_folder(Path(cfg.out), cfg.identity(), cfg.to_dict(), shards)

@@ -10,6 +10,7 @@ of a wall of missing-key messages.
 from __future__ import annotations
 
 import os
+import pickle
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -80,6 +81,14 @@ def save_checkpoint(
     return file_sha256(path)
 
 
+def _reason(error: Exception) -> str:
+    """The line of torch's message that names the problem: its messages span paragraphs, and
+    the one of `weights_only` suggests turning it off."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    named = [line for line in lines if "GLOBAL" in line]
+    return (named or lines or [type(error).__name__])[0]
+
+
 def load_checkpoint(
     path: Path | str, *, family: str, name: str | None = None, map_location: str = "cpu"
 ) -> Checkpoint:
@@ -94,11 +103,15 @@ def load_checkpoint(
         raise CheckpointError(f"{path}: no such checkpoint file")
     try:
         payload = torch.load(path, map_location=map_location, weights_only=True)
-    except (
-        Exception
-    ) as e:  # torch raises RuntimeError, UnpicklingError, EOFError, ... for bad files
+    except Exception as e:  # torch raises RuntimeError, UnpicklingError, EOFError, ...
+        reason = _reason(e)
+        if isinstance(e, pickle.UnpicklingError) and "GLOBAL" in reason:  # code: never run it
+            raise CheckpointError(
+                f"{path}: refused: it holds objects that are not plain tensors and data, and "
+                f"loading them could run code ({reason})"
+            ) from e
         raise CheckpointError(
-            f"{path}: unreadable checkpoint (corrupt or truncated?): {type(e).__name__}: {e}"
+            f"{path}: unreadable checkpoint (corrupt or truncated?): {type(e).__name__}: {reason}"
         ) from e
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise CheckpointError(f"{path}: not an AED checkpoint (no format {FORMAT!r})")

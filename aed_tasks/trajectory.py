@@ -36,6 +36,7 @@ from typing import Any, Literal
 import numpy as np
 
 from aed_tasks.episode import ROLES, Episode, frame_labels_from_onset, onset_frame
+from aed_tasks.locks import LOCK_NAME, lock_holder, pid_alive
 
 logger = logging.getLogger(__name__)
 
@@ -53,7 +54,11 @@ EPISODE_KEYS = (
     "env_index",
     "split",
 )
-Check = Literal["quick", "full"]
+Check = Literal["size", "quick", "full"]
+"""How much of a shard `read_shard` verifies. size: the json, the h5's recorded size and every
+episode's groups. quick (the readers' default): also the h5's sha256, computed once per process
+and file version (path, inode, size, mtime), so that damage of the same size is named before it
+is read. full: the sha256 computed again on every read (before a collection is written to)."""
 
 
 class CollectionError(RuntimeError):
@@ -298,7 +303,7 @@ class ShardWriter:
                 "format": FORMAT,
                 "shard": shard or {},
                 "h5_bytes": self.h5_path.stat().st_size,
-                "h5_sha256": sha256(self.h5_path),
+                "h5_sha256": _hash_verified(self.h5_path),
             },
             "episodes": self.episodes,
         }
@@ -350,6 +355,22 @@ def sha256(path: Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+# (path, device, inode, size, mtime_ns) of each h5 whose sha256 this process verified -> sha256
+_VERIFIED: dict[tuple[str, int, int, int, int], str] = {}
+
+
+def _version(path: Path) -> tuple[str, int, int, int, int]:
+    stat = path.stat()
+    return (str(path.resolve()), stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns)
+
+
+def _hash_verified(path: Path) -> str:
+    """The sha256 of a file this process just wrote, remembered as verified."""
+    digest = sha256(path)
+    _VERIFIED[_version(path)] = digest
+    return digest
 
 
 # --- reading -----------------------------------------------------------------------------------
@@ -415,14 +436,36 @@ class Collection:
         return iter(self.shards)
 
 
+def verify_sha256(h5_path: Path, expected: Any, cached: bool = True) -> None:
+    """Raise `CollectionError` when the h5's sha256 is not `expected` (the one its json recorded).
+
+    `cached`: a file version already verified in this process is not hashed again; any write
+    changes its size or mtime (or inode, when replaced), and so its key.
+    """
+    key = _version(h5_path)
+    if cached and expected is not None and _VERIFIED.get(key) == expected:
+        return
+    digest = sha256(h5_path)
+    if digest != expected:
+        raise CollectionError(
+            h5_path,
+            "corrupt: sha256 differs from the one its json recorded (damaged after it was "
+            "written); delete this shard's .json and .h5 and re-run",
+        )
+    _VERIFIED[key] = digest
+
+
 def read_shard(json_path: Path, check: Check = "quick") -> ShardInfo:
     """Read and validate one committed shard; any problem raises `CollectionError` naming the file.
 
-    quick: json well-formed, h5 present with the recorded size, every traj group present
-    with consistent lengths. full: also the h5's sha256.
+    size: json well-formed, h5 present with the recorded size, every traj group present with
+    consistent lengths. quick: also the h5's sha256, once per process and file version. full:
+    the sha256 on every call (see `Check`).
     """
     import h5py
 
+    if check not in ("size", "quick", "full"):
+        raise ValueError(f"check={check!r}: size, quick or full")
     json_path = Path(json_path)
     h5_path = json_path.with_suffix(".h5")
     try:
@@ -443,8 +486,8 @@ def read_shard(json_path: Path, check: Check = "quick") -> ShardInfo:
         raise CollectionError(
             h5_path, f"corrupt: {size} bytes, its json recorded {aed.get('h5_bytes')}"
         )
-    if check == "full" and sha256(h5_path) != aed.get("h5_sha256"):
-        raise CollectionError(h5_path, "corrupt: sha256 differs from the one its json recorded")
+    if check != "size":
+        verify_sha256(h5_path, aed.get("h5_sha256"), cached=check == "quick")
     episodes = body.get("episodes")
     if not isinstance(episodes, list) or not isinstance(body.get("env_info"), dict):
         raise CollectionError(json_path, "corrupt json: no env_info or episodes list")
@@ -505,7 +548,7 @@ def scan_collection(root: Path, check: Check = "quick") -> Collection:
     names = {p.name for p in root.iterdir()}
     for name in sorted(names):
         path = root / name
-        if name == MANIFEST:
+        if name in (MANIFEST, LOCK_NAME):
             continue
         if name.endswith(TMP_SUFFIX) and name[: -len(TMP_SUFFIX)].endswith((".h5", ".json")):
             collection.temporaries.append(path)
@@ -517,11 +560,19 @@ def scan_collection(root: Path, check: Check = "quick") -> Collection:
         else:
             raise CollectionError(
                 path,
-                "foreign file in a collection folder (only <shard>.h5/.json and "
-                f"{MANIFEST} belong here); move it elsewhere",
+                "foreign file in a collection folder (only <shard>.h5/.json, "
+                f"{MANIFEST} and {LOCK_NAME} belong here); move it elsewhere",
             )
     leftovers = collection.temporaries + collection.uncommitted
-    if leftovers:
+    holder = lock_holder(root)  # another live writer's temporaries are no leftovers
+    if leftovers and holder not in (None, os.getpid()) and pid_alive(holder):
+        logger.info(
+            "%s: being written by pid %d: %d unfinished shard(s) not read",
+            root,
+            holder,
+            len(leftovers),
+        )
+    elif leftovers:
         logger.warning(
             "%s: %d leftover(s) of an interrupted collection, not read: %s",
             root,

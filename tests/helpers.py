@@ -16,3 +16,23 @@ def load_script(name: str) -> ModuleType:
     sys.modules[name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
+
+
+def write_synthetic_collection(
+    root: Path, counts: dict[str, int], envs: tuple[int, ...] = (0, 1), steps: int = 12
+) -> Path:
+    """A collection of `tests.test_data.synthetic` episodes: per environment, one shard per role
+    with `counts[role]` episodes of `steps`, `steps + 2`, ... steps (no simulation)."""
+    from aed_tasks import trajectory
+    from tests.test_data import synthetic
+
+    root.mkdir(parents=True, exist_ok=True)
+    info = {"env_id": "aed_tasks:AED-PickPlace-base", "env_kwargs": {}, "max_episode_steps": 250}
+    for env_index in envs:
+        for role, n in counts.items():
+            writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
+            for k in range(n):
+                episode = synthetic(role, env_index, seed=100 * env_index + k, steps=steps + 2 * k)
+                writer.add(*episode)
+            writer.commit(info, {"env_index": env_index, "group": role})
+    return root

@@ -329,7 +329,9 @@ def test_worker_count_does_not_change_the_episodes(state_collection, tmp_path):
 
 @pytest.mark.slow
 def test_ray_executor_gives_the_same_episodes(state_collection, tmp_path):
-    ray = pytest.importorskip("ray", reason="the optional `ray` extra is not installed")
+    ray = pytest.importorskip(
+        "ray", reason="ray is not installed: the dev extra brings it (`make setup`)"
+    )
     try:
         run_collection(
             CollectConfig.from_preset(

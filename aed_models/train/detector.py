@@ -49,6 +49,7 @@ from aed_models.train.policy import (
     select_environments,
     trained_on,
 )
+from aed_tasks.locks import locks_out_folder
 
 logger = logging.getLogger(__name__)
 
@@ -204,6 +205,7 @@ def prepare(
     return to_device({"demos": batch["demos"], "rollouts": batch["rollouts"]}, device), None
 
 
+@locks_out_folder  # one training per out folder (aed_tasks.locks)
 def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
     """Train, checkpointing every epoch; returns the final checkpoint `<out>/detector.pt`.
 

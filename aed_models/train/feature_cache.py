@@ -4,13 +4,18 @@ PrObe and RND-OE train on the policy's history features f_h and task embedding f
 on images. Encoding every frame each epoch would cost what the policy's training costs, so
 the features of every base agent rollout are computed once per policy checkpoint:
 
-    <root>/<policy sha256[:16]>/<shard stem>.npz   one file per episode shard, written atomically
+    <root>/<policy sha256[:16]>/seed<seed>-demos<num_demos>/<shard stem>.npz
 
-holding, per episode (`traj_<i>`), history (T+1, Dh), task (T+1, Dz) and labels (T+1,), all
-float32, plus a json `meta` entry: the policy's full sha256, the shard's size and mtime, each
-episode's frame count, and which demonstrations conditioned the policy. A file whose meta no
-longer matches (another policy, a rewritten shard, missing episodes, wrong shapes) is stale;
-one that does not load is corrupt: `build` recomputes both, `load` refuses them.
+one file per episode shard, written atomically, holding per episode (`traj_<i>`) history
+(T+1, Dh), task (T+1, Dz) and labels (T+1,), all float32, plus a json `meta` entry: the
+policy's full sha256, the seed and number of demonstrations, the shard's size and mtime, each
+episode's frame count, and which demonstrations conditioned the policy. The folder is keyed by
+everything the features depend on (the policy checkpoint, the demonstrations' draw: seed and
+count), so trainings with another seed neither share nor overwrite each other's features. A
+file whose meta does not match its key (another policy, seed or count, a rewritten shard,
+missing episodes, wrong shapes) is stale; one that does not load is corrupt: `build`
+recomputes both, `load` refuses them. `build` holds the folder's writer lock
+(`aed_tasks.locks`) while it writes.
 
 Which demonstrations: the policy's features depend on the demonstrations it is given. Each
 environment gets one fixed draw of `num_demos` optimal demonstrations (seeded by the cache
@@ -50,14 +55,16 @@ from aed_models.data import (
     subsample,
 )
 from aed_tasks import trajectory
+from aed_tasks.locks import folder_lock
 
 logger = logging.getLogger(__name__)
 
 ROLLOUT_ROLES = ("agent_success", "agent_failure")
 
 
-class FeatureCacheError(RuntimeError):
-    """A cache file that is missing, stale or corrupt (the message names the file and why)."""
+class FeatureCacheError(ValueError):
+    """A cache file that is missing, stale or corrupt, or an environment without the
+    demonstrations to compute it (the message names the file or environment, and why)."""
 
 
 @dataclass
@@ -73,22 +80,46 @@ def _shard_stamp(path: Path) -> dict[str, int]:
 
 
 class FeatureCache:
-    """Policy features of episodes, keyed by (shard file, traj id), for one policy checkpoint.
+    """Policy features of episodes, keyed by (shard file, traj id), for one policy checkpoint
+    conditioned on one draw of demonstrations.
 
     Args:
         root: the features folder, e.g. `runs/<task>/features`.
         policy_sha256: sha256 of the policy checkpoint file (64 hex digits).
+        max_shards_in_memory: shards kept in memory after reading (least recently used out).
+        seed: seeds each environment's draw of conditioning demonstrations.
+        num_demos: demonstrations drawn per environment.
     """
 
-    def __init__(self, root: Path | str, policy_sha256: str, max_shards_in_memory: int = 16):
+    def __init__(
+        self,
+        root: Path | str,
+        policy_sha256: str,
+        max_shards_in_memory: int = 16,
+        *,
+        seed: int = 0,
+        num_demos: int = 5,
+    ):
         if len(policy_sha256) != 64 or any(c not in "0123456789abcdef" for c in policy_sha256):
             raise ValueError(f"policy_sha256={policy_sha256!r}: expected 64 lowercase hex digits")
+        self.root = Path(root)
         self.policy_sha256 = policy_sha256
-        self.dir = Path(root) / policy_sha256[:16]
         self.max_shards_in_memory = max_shards_in_memory
-        self._shards: OrderedDict[Path, dict[str, CachedEpisode]] = (
-            OrderedDict()
-        )  # least recently used first
+        self._shards: OrderedDict[Path, dict[str, CachedEpisode]] = OrderedDict()  # LRU first
+        self._set_key(seed, num_demos)
+
+    def _set_key(self, seed: int, num_demos: int) -> None:
+        if isinstance(seed, bool) or not isinstance(seed, int):
+            raise ValueError(f"seed={seed!r}: must be an integer")
+        if isinstance(num_demos, bool) or not isinstance(num_demos, int) or num_demos < 1:
+            raise ValueError(f"num_demos={num_demos!r}: must be an integer >= 1")
+        self.seed, self.num_demos = seed, num_demos
+        self._shards = OrderedDict()
+
+    @property
+    def dir(self) -> Path:
+        """This key's folder: `<root>/<policy sha256[:16]>/seed<seed>-demos<num_demos>`."""
+        return self.root / self.policy_sha256[:16] / f"seed{self.seed}-demos{self.num_demos}"
 
     def __getstate__(self) -> dict[str, Any]:  # DataLoader workers start with an empty memory
         return {**self.__dict__, "_shards": OrderedDict()}
@@ -139,6 +170,9 @@ class FeatureCache:
                 f"made with policy {str(meta.get('policy_sha256'))[:16]}, "
                 f"not {self.policy_sha256[:16]}"
             )
+        for name in ("seed", "num_demos"):
+            if meta.get(name) != getattr(self, name):
+                return f"made with {name}={meta.get(name)!r}, not {getattr(self, name)!r}"
         if meta.get("shard") != Path(shard).name or meta.get("stamp") != _shard_stamp(Path(shard)):
             return f"episode shard {Path(shard).name} changed since it was cached"
         frames = meta.get("num_frames", {})
@@ -167,31 +201,59 @@ class FeatureCache:
         self,
         episodes: Sequence[trajectory.EpisodeRef],
         policy: Any,
-        num_demos: int = 5,
-        seed: int = 0,
+        num_demos: int | None = None,
+        seed: int | None = None,
         camera: str = "front",
         progress: bool = False,
     ) -> int:
         """Compute and write the features of every agent rollout in `episodes` whose shard is
-        not cached, stale or corrupt. Returns the number of shards written."""
+        not cached, stale or corrupt. Returns the number of shards written.
+
+        `num_demos` and `seed`, when given, re-key the cache (its `dir` follows). The folder is
+        locked while it is written: another process building the same key is refused.
+        """
+        self._set_key(
+            self.seed if seed is None else seed, self.num_demos if num_demos is None else num_demos
+        )
         rollouts = [e for e in episodes if e.role in ROLLOUT_ROLES]
+        todo = self._todo(_by_shard(rollouts), quiet=True)
+        if not todo:
+            return 0
+        with folder_lock(self.dir):  # checked again: another process may have written them
+            return self._write(self._todo(todo, quiet=False), episodes, policy, camera, progress)
+
+    def _todo(
+        self, shards: dict[Path, list[trajectory.EpisodeRef]], quiet: bool
+    ) -> dict[Path, list[trajectory.EpisodeRef]]:
+        """The shards among `shards` that are not cached, or stale, or corrupt."""
         todo = {}
-        for shard, refs in _by_shard(rollouts).items():
+        for shard, refs in shards.items():
             try:
                 self._read(shard, refs)
             except FeatureCacheError as e:
-                if self.path_for(shard).exists():
+                if not quiet and self.path_for(shard).exists():
                     logger.warning("recomputing features: %s", e)
                 todo[shard] = refs
+        return todo
+
+    def _write(
+        self,
+        todo: dict[Path, list[trajectory.EpisodeRef]],
+        episodes: Sequence[trajectory.EpisodeRef],
+        policy: Any,
+        camera: str,
+        progress: bool,
+    ) -> int:
+        """Compute the features of `todo`'s shards and write one file per shard."""
         if not todo:
             return 0
+        num_demos, seed = self.num_demos, self.seed
         demo_pools = _group(episodes, "optimal")
         device = next(iter(policy.parameters())).device
         reader = EpisodeReader(camera)
         demo_cache: dict[int, tuple[dict[str, torch.Tensor], list[str]]] = {}
         from tqdm.auto import tqdm
 
-        self.dir.mkdir(parents=True, exist_ok=True)
         try:
             for shard, refs in tqdm(
                 todo.items(), desc="policy features", unit="shard", disable=not progress
