@@ -33,6 +33,7 @@ def _commands() -> dict[str, Callable[..., Any]]:
         "render": render.render_envs,
         "collect": collect.collect,
         "data-info": data_info.data_info,
+        "train-encoder": train.train_encoder,
         "train-policy": train.train_policy,
         "train-detector": train.train_detector,
         "rollout": rollout.rollout,
@@ -56,6 +57,7 @@ def _preset_commands() -> dict[str, tuple[Callable[..., Any], tuple[str, ...], C
             ("task", "split", "profile"),
             collect.collect,
         ),
+        "train-encoder": (train.encoder_preset, ("task", "profile"), train.train_encoder),
         "train-policy": (train.policy_preset, ("task", "policy", "profile"), train.train_policy),
         "train-detector": (
             train.detector_preset,
@@ -98,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     import tyro
 
     from aed_eval.logs import setup_logging
+    from aed_tasks.locks import FolderLockedError
     from aed_tasks.trajectory import CollectionError
 
     setup_logging()
@@ -113,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
         IndexError,
         FileNotFoundError,
         CollectionError,
+        FolderLockedError,
     ) as e:  # CheckpointError is a ValueError
         if os.environ.get("AED_DEBUG"):
             raise

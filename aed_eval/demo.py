@@ -1,25 +1,11 @@
 """`aed demo`: the whole AED protocol for one task, small enough for a 2-core CPU.
 
-Stages, each reusing what an earlier run finished (collections and rollouts resume shard by
-shard, training resumes from its last epoch):
-
-1. collect the base split (`aed collect`): demonstrations, agent successes and labelled agent
-   failures in the training environments; demonstrations and a few expert successes in the
-   held-out calibration environments, which no model trains on;
-2. phase 1: train the policies (`aed train-policy`) on the training environments;
-3. phase 2: train the detectors (`aed train-detector`; PrObe and rnd_oe once per policy);
-4. collect the novel split: the environments' demonstrations, and labelled expert episodes
-   (successes and injected failures) for the delay metrics;
-5. phase 3: roll every policy out in the novel environments, and in the calibration
-   environments (`aed rollout`; every rollout runs the task's horizon);
-6. calibrate every detector's thresholds on the policy's successful calibration rollouts, and
-   on the expert's successes there for comparison (`aed calibrate`);
-7. score the rollouts and compute the metrics (`aed evaluate`), then the report (`aed report`).
-
-Every stage is built from the same named preset (`--profile`, default `demo`): the protocol's
-counts (`aed_eval.presets`) and each model's sizes and recipe (`aed_models.recipe`), so that
-`aed train-policy --profile demo` trains what the demo trains. `--profile paper` runs the same
-stages at the paper's sizes (a GPU machine's job).
+Stages: collect the base split (training and held-out calibration environments); train the
+scene encoder when the policies read it, the policies, then the detectors; collect the novel
+split's demonstrations and labelled expert episodes; roll every policy out in the novel and
+calibration environments; calibrate, evaluate, report. Each stage resumes what an earlier run
+finished. Every stage is built from one named preset (`--profile`, default `demo`), so that
+`aed train-policy --profile demo` trains what the demo trains.
 """
 
 from __future__ import annotations
@@ -45,8 +31,7 @@ logger = logging.getLogger(__name__)
 
 @dataclass
 class DemoConfig(Protocol):
-    """What `aed demo` runs: the protocol's counts (per environment; see `Protocol`) and where.
-    Build it with `from_preset`.
+    """What `aed demo` runs (build it with `from_preset`): the protocol's counts and where.
 
     Args:
         task: task of the pipeline.
@@ -54,6 +39,7 @@ class DemoConfig(Protocol):
         runs: root of everything the demo writes (the runs/ layout of aed_models.layout).
         horizon: steps of every rollout (the task's evaluation horizon by default).
         detectors: detectors trained, calibrated and evaluated.
+        encoder_epochs: override the scene encoder's training epochs (0: its recipe).
         policy_epochs: override every policy's training epochs (0: each one's recipe).
         detector_epochs: override every detector's training epochs (0: each one's recipe).
         alphas: false-alarm rates of the calibrated thresholds.
@@ -66,6 +52,7 @@ class DemoConfig(Protocol):
     runs: Path
     horizon: int
     detectors: tuple[str, ...] = DETECTOR_NAMES
+    encoder_epochs: int = 0
     policy_epochs: int = 0
     detector_epochs: int = 0
     alphas: tuple[float, ...] = (0.1, 0.2)
@@ -97,11 +84,9 @@ class DemoConfig(Protocol):
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
-        if self.policy_epochs < 0 or self.detector_epochs < 0:
-            raise ValueError(
-                f"policy_epochs={self.policy_epochs}, detector_epochs={self.detector_epochs}: "
-                "must be >= 0"
-            )
+        for name in ("encoder_epochs", "policy_epochs", "detector_epochs"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}={getattr(self, name)}: must be >= 0")
         if self.train_envs + self.calibration_envs > sizes["base"]:
             raise ValueError(
                 f"train_envs={self.train_envs} + calibration_envs={self.calibration_envs}: "
@@ -181,6 +166,19 @@ class Stages:
         run_collection(
             CollectConfig.from_preset(**common, envs=c.calibration_env_indices, num_failures=0)
         )
+
+    def train_encoder(self) -> None:
+        from aed_models.policies import POLICIES
+        from aed_models.train.encoder import TrainEncoderConfig, train_encoder
+
+        c = self.cfg
+        if any(POLICIES.preset(p, c.profile).frozen_encoder for p in c.policies):
+            epochs = {"epochs": c.encoder_epochs} if c.encoder_epochs else {}
+            train_encoder(
+                TrainEncoderConfig.from_preset(
+                    c.task, c.profile, runs=c.runs, num_envs=c.train_envs, seed=c.seed, **epochs
+                )
+            )
 
     def train_policies(self) -> None:
         from aed_models.train.policy import TrainPolicyConfig, train_policy
@@ -332,6 +330,7 @@ def run_demo(cfg: DemoConfig) -> tuple[Path, dict[str, float]]:
     """Every stage in order; returns the report's path and the stage times."""
     stages = Stages(cfg)
     stages.timed("collect base split", stages.collect_base)
+    stages.timed("train scene encoder", stages.train_encoder)
     stages.timed("train policies", stages.train_policies)
     stages.timed("train detectors", stages.train_detectors)
     stages.timed("collect novel split", stages.collect_novel)

@@ -1,4 +1,5 @@
-"""`aed train-policy` and `aed train-detector`: phases 1 and 2 of the protocol.
+"""`aed train-encoder`, `aed train-policy` and `aed train-detector`: phases 1 and 2 of the
+protocol (the scene encoder first, under mini: the policies' frozen visual head).
 
 Thin command-line faces of the training loops in `aed_models.train`; the loops themselves
 (CleanRL style, checkpointed every epoch, resumable) live beside the models.
@@ -14,12 +15,23 @@ import tyro
 from aed_eval.checks import task_class
 from aed_eval.presets import protocol
 from aed_models.train.detector import TrainDetectorConfig
+from aed_models.train.encoder import TrainEncoderConfig
 from aed_models.train.policy import TrainPolicyConfig
 
 
 def training_envs(task: str, profile: str) -> int:
     """How many base environments the protocol trains on (the rest of a collection calibrates)."""
     return protocol(profile).training_envs(task_class(task).catalogue_sizes["base"])
+
+
+def encoder_preset(
+    task: str = "PressButton", profile: str = "mini", **kw: Any
+) -> TrainEncoderConfig:
+    """`aed train-encoder`'s defaults: the encoder's recipe, on the protocol's training
+    environments."""
+    return TrainEncoderConfig.from_preset(
+        task, profile, num_envs=training_envs(task, profile), **kw
+    )
 
 
 def policy_preset(
@@ -72,4 +84,17 @@ def train_detector(cfg: Annotated[TrainDetectorConfig, tyro.conf.arg(name="")]) 
         f"{path}: {cfg.detector} trained on {cfg.task} ({cfg.profile}) in "
         f"{time.perf_counter() - start:.0f} s"
     )
+    return 0
+
+
+def train_encoder(cfg: Annotated[TrainEncoderConfig, tyro.conf.arg(name="")]) -> int:
+    """Train the scene encoder (the mini policies' frozen visual head) to say where the TCP, the
+    stage target and the task objects are, from single frames of the base collection
+    (resumable)."""
+    from aed_models.train.encoder import train_encoder as run
+
+    start = time.perf_counter()
+    path = run(cfg)
+    seconds = time.perf_counter() - start
+    print(f"{path}: scene encoder of {cfg.task} ({cfg.profile}) in {seconds:.0f} s")
     return 0

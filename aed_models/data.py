@@ -28,8 +28,9 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 from collections import defaultdict
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -102,6 +103,48 @@ def stage_subgoals(tcp: np.ndarray, stage: np.ndarray) -> np.ndarray:
     return goals
 
 
+CLUTTER = re.compile(r"distractor_\d+$")  # the tasks' unrelated clutter (not task objects)
+ROBOTS = ("panda",)
+
+
+def scene_state(group: Any) -> np.ndarray:
+    """(T + 1, D) float32: where things are at every frame of one stored episode.
+
+    The TCP position, the stage target (`stage_subgoals`), then, for every task object in the
+    recorded env states (every actor and articulation but the robot and the clutter, sorted by
+    name), its root position and, for an articulation, its joint positions. The encoder learns
+    these from the frame (`aed_models.encoder`); the policies act from RGB-D alone.
+    """
+    tcp = group["obs/extra/tcp_pose"][()][:, :3].astype(np.float32)
+    parts = [tcp, stage_subgoals(tcp, group["stage"][()])]
+    states = group["env_states"]
+    for kind in ("actors", "articulations"):
+        for name in sorted(states.get(kind, {})):
+            if name in ROBOTS or CLUTTER.match(name):
+                continue
+            state = states[kind][name][()].astype(np.float32)
+            parts.append(state[:, :3])
+            if kind == "articulations":
+                dof = (state.shape[1] - 13) // 2
+                parts.append(state[:, 13 : 13 + dof])
+    return np.concatenate(parts, axis=1)
+
+
+def scene_state_names(group: Any) -> list[str]:
+    """Names of `scene_state`'s columns (e.g. `button.x`, `button.q0`)."""
+    names = [f"tcp.{a}" for a in "xyz"] + [f"subgoal.{a}" for a in "xyz"]
+    states = group["env_states"]
+    for kind in ("actors", "articulations"):
+        for name in sorted(states.get(kind, {})):
+            if name in ROBOTS or CLUTTER.match(name):
+                continue
+            names += [f"{name}.{a}" for a in "xyz"]
+            if kind == "articulations":
+                dof = (states[kind][name].shape[1] - 13) // 2
+                names += [f"{name}.q{i}" for i in range(dof)]
+    return names
+
+
 @dataclass
 class FrameSequence:
     """One episode's (possibly augmented / subsampled) frames with aligned per-frame data.
@@ -110,17 +153,18 @@ class FrameSequence:
     so a batch is converted once, straight into its padded tensor.
     """
 
-    rgb: np.ndarray  # (L, H, W, 3) uint8
-    depth: np.ndarray  # (L, H, W, 1) int16 mm
+    rgb: np.ndarray | None  # (L, H, W, 3) uint8 (None when only features were read)
+    depth: np.ndarray | None  # (L, H, W, 1) int16 mm
     labels: torch.Tensor  # (L,) float32
     actions: torch.Tensor  # (L, A) float32
     source: torch.Tensor  # (L,) int64: index of each frame in the episode
     ref: trajectory.EpisodeRef
     proprio: torch.Tensor | None = None  # (L, PROPRIO_DIM) float32
     subgoal: torch.Tensor | None = None  # (L, 3) float32
+    features: torch.Tensor | None = None  # (L, D) float32: a frozen visual head's, cached
 
     def __len__(self) -> int:
-        return len(self.rgb)
+        return len(self.source)
 
     @property
     def frames(self) -> torch.Tensor:
@@ -155,8 +199,11 @@ class EpisodeReader:
             self._files[path] = h5py.File(path, "r")
         return self._files[path]
 
-    def read(self, ref: trajectory.EpisodeRef, indices: np.ndarray | None = None) -> FrameSequence:
-        """Frames `indices` (default: all T + 1) of one episode, in that order (repeats allowed)."""
+    def read(
+        self, ref: trajectory.EpisodeRef, indices: np.ndarray | None = None, images: bool = True
+    ) -> FrameSequence:
+        """Frames `indices` (default: all T + 1) of one episode, in that order (repeats allowed);
+        `images=False` reads everything but the images."""
         h5 = self._file(ref.path)
         group = h5[ref.traj]
         if indices is None:
@@ -166,10 +213,12 @@ class EpisodeReader:
             raise IndexError(
                 f"{ref.path.name}/{ref.traj}: frame indices outside 0..{ref.num_frames - 1}"
             )
-        images = group[f"obs/sensor_data/{self.camera}"]
-        unique, inverse = np.unique(indices, return_inverse=True)
-        rgb = _read_rows(images["rgb"], unique)[inverse]
-        depth = _read_rows(images["depth"], unique)[inverse]
+        rgb = depth = None
+        if images:
+            camera = group[f"obs/sensor_data/{self.camera}"]
+            unique, inverse = np.unique(indices, return_inverse=True)
+            rgb = _read_rows(camera["rgb"], unique)[inverse]
+            depth = _read_rows(camera["depth"], unique)[inverse]
         labels = frame_labels(group["error_label"][()]).astype(np.float32)[indices]
         actions = group["actions"][()].astype(np.float32)
         actions = np.concatenate([actions, np.zeros((1, actions.shape[1]), np.float32)])[indices]
@@ -217,31 +266,34 @@ def _read_rows(dataset: Any, rows: np.ndarray) -> np.ndarray:
 def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
     """Pad to the longest: frames (B, L, 4, H, W), labels (B, L), actions (B, L, A), lengths (B,),
     mask (B, L), source (B, L) (each frame's index in its episode), and proprio (B, L, PROPRIO_DIM)
-    and subgoal (B, L, 3) when every sequence has them."""
+    and subgoal (B, L, 3) when every sequence has them. Sequences read without images give their
+    cached `features` (B, L, D) instead of frames."""
     if not seqs:
         return {}
     lengths = torch.tensor([len(s) for s in seqs], dtype=torch.int64)
     longest = int(lengths.max())
-    height, width = seqs[0].rgb.shape[1:3]
-    frames = torch.empty((len(seqs), longest, 4, height, width), dtype=torch.float32)
     labels = torch.zeros(len(seqs), longest)
     actions = torch.zeros(len(seqs), longest, seqs[0].actions.shape[1])
     source = torch.zeros(len(seqs), longest, dtype=torch.int64)
     for i, s in enumerate(seqs):
         n = len(s)
-        to_frames(s.rgb, s.depth, out=frames[i, :n])
-        frames[i, n:] = 0.0
         labels[i, :n], actions[i, :n], source[i, :n] = s.labels, s.actions, s.source
     mask = torch.arange(longest)[None] < lengths[:, None]
     batch = {
-        "frames": frames,
         "labels": labels,
         "actions": actions,
         "lengths": lengths,
         "mask": mask,
         "source": source,
     }
-    for key in ("proprio", "subgoal"):
+    if seqs[0].rgb is not None:
+        height, width = seqs[0].rgb.shape[1:3]
+        frames = torch.empty((len(seqs), longest, 4, height, width), dtype=torch.float32)
+        for i, s in enumerate(seqs):
+            to_frames(s.rgb, s.depth, out=frames[i, : len(s)])
+            frames[i, len(s) :] = 0.0
+        batch["frames"] = frames
+    for key in ("features", "proprio", "subgoal"):
         if all(getattr(s, key) is not None for s in seqs):
             batch[key] = torch.zeros(len(seqs), longest, getattr(seqs[0], key).shape[-1])
             for i, s in enumerate(seqs):
@@ -278,6 +330,8 @@ class EnvironmentIterations(Dataset):
             per epoch for a per-frame model such as NaiveDC). Demonstrations are always even.
         demos: which demonstrations to draw: optimal, suboptimal, or any.
         seed: root seed of the draws.
+        features: per episode (keyed by `(str(path), traj)`), a frozen visual head's cached
+            features (T + 1, D): sequences then carry them instead of images.
     """
 
     def __init__(
@@ -290,6 +344,7 @@ class EnvironmentIterations(Dataset):
         demos: Literal["optimal", "suboptimal", "any"] = "optimal",
         seed: int = 0,
         rollout_frames: Literal["even", "random"] = "even",
+        features: Mapping[tuple[str, str], np.ndarray] | None = None,
     ):
         if isinstance(composition, str):
             if composition not in COMPOSITIONS:
@@ -304,6 +359,7 @@ class EnvironmentIterations(Dataset):
         self.augment = augment
         self.max_frames = max_frames
         self.seed = seed
+        self.features = features
         self.reader = EpisodeReader(camera)
         self.pools = _group(episodes, demos)
         self.env_indices = sorted(self.pools)
@@ -378,10 +434,14 @@ class EnvironmentIterations(Dataset):
             and self.max_frames
             and len(indices) > self.max_frames
         ):
-            return self.reader.read(
-                ref, indices[np.sort(rng.choice(len(indices), self.max_frames, replace=False))]
-            )
-        return self.reader.read(ref, subsample(indices, self.max_frames))
+            indices = indices[np.sort(rng.choice(len(indices), self.max_frames, replace=False))]
+        else:
+            indices = subsample(indices, self.max_frames)
+        if self.features is None:
+            return self.reader.read(ref, indices)
+        seq = self.reader.read(ref, indices, images=False)
+        seq.features = torch.from_numpy(self.features[str(ref.path), ref.traj][indices])
+        return seq
 
 
 def _group(

@@ -2,9 +2,10 @@
 
 runs/<task>/data/<split>                       aed collect (base: training; novel: demonstrations)
 runs/<task>/data/<split>-labelled              labelled expert episodes of the novel split
+runs/<task>/encoder/encoder.pt                 aed train-encoder (the mini policies' frozen head)
 runs/<task>/policies/<policy>/policy.pt        aed train-policy
 runs/<task>/detectors/<detector>[-<policy>]/   aed train-detector (detector.pt), aed calibrate
-runs/<task>/features/<policy sha256[:16]>/     frozen-policy features (PrObe, rnd_oe training)
+runs/<task>/features/<policy sha256[:16]>/seed<s>-demos<n>/  frozen-policy features (PrObe, rnd_oe)
 runs/<task>/rollouts/<policy>/<split>          aed rollout
 runs/<task>/<policy>/eval                      aed evaluate
 runs/report                                    aed report
@@ -25,6 +26,9 @@ class RunLayout:
 
     def labelled(self, task: str, split: str = "novel") -> Path:
         return Path(self.root) / task / "data" / f"{split}-labelled"
+
+    def encoder(self, task: str) -> Path:
+        return Path(self.root) / task / "encoder" / "encoder.pt"
 
     def policy(self, task: str, policy: str) -> Path:
         return Path(self.root) / task / "policies" / policy / "policy.pt"

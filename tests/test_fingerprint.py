@@ -12,6 +12,12 @@ import pytest
 from tests import fingerprint
 
 EXACT = ("recipes", "protocol", "demo")
+GONE = object()  # "value now" of a field removed on purpose
+ABSENT = object()  # "value then" of a field added on purpose
+FROZEN = (
+    "the mini policies' visual head is the task's scene encoder, frozen (aed train-encoder); "
+    "they train on its cached features, which are not shifted (the encoder was)"
+)
 # Changes made on purpose since the fingerprint was stored: (path, value then, value now, why).
 INTENDED = [
     *(
@@ -23,20 +29,71 @@ INTENDED = [
         )
         for task in fingerprint.TASKS
     ),
+    *(
+        (
+            ("recipes", f"model/{name}/{profile}", "running_max"),
+            True,
+            GONE,
+            "the running maximum is one post-processing step of scoring and monitoring for the "
+            "detectors without memory (aed_models.detectors.postprocess), no longer a field",
+        )
+        for name in ("svdd_ed", "taskemb_ed", "rnd_oe")
+        for profile in fingerprint.PROFILES
+    ),
+    *(
+        (
+            ("recipes", f"model/{name}/{profile}", "frozen_encoder"),
+            ABSENT,
+            profile == "mini",
+            FROZEN,
+        )
+        for name in ("naive_dc", "dct", "scan")
+        for profile in fingerprint.PROFILES
+    ),
+    *(
+        (("recipes", f"train/{name}/mini/{task}", "shift"), 4, 0, FROZEN)
+        for name in ("naive_dc", "dct", "scan")
+        for task in fingerprint.TASKS
+    ),
+    (("demo", "mini", "policy", 0, "shift"), 4, 0, FROZEN),
 ]
+
+# Weights whose keys were renamed on purpose, values unchanged: (part, model, why); the model's
+# own rename of old checkpoints' keys maps the stored keys.
+RENAMED = [
+    ("detectors", "dct_ed", "DCTED on the shared attention blocks: q/k/v for query/key/value"),
+]
+
+
+def renamed_keys(part: str, model: str, weights: dict) -> dict:
+    """`weights` (key -> summary) under the keys the model loads them as today."""
+    from aed_models.detectors import make_detector
+
+    assert part == "detectors", part
+    now = make_detector(model).upgrade_state_dict(weights)
+    assert len(now) == len(weights) and now != weights, f"{part}/{model}: nothing renamed"
+    return now
 
 
 def with_intended_changes(stored: dict) -> dict:
     """`stored` with each intended change applied, after checking it held the value of then."""
+    for part, model, _why in RENAMED:
+        stored[part][model] = renamed_keys(part, model, stored[part][model])
     for path, then, now, _why in INTENDED:
         *parents, leaf = path
         node = stored
         for key in parents:
             node = node[key]
-        assert node[leaf] == then, (
-            f"{path}: stored {node[leaf]!r}, the intended change says {then!r}"
-        )
-        node[leaf] = now
+        if then is ABSENT:
+            assert leaf not in node, f"{path}: stored, the intended change says it was absent"
+        else:
+            assert node[leaf] == then, (
+                f"{path}: stored {node[leaf]!r}, the intended change says {then!r}"
+            )
+        if now is GONE:
+            del node[leaf]
+        else:
+            node[leaf] = now
     return stored
 
 

@@ -43,6 +43,7 @@ def pipeline(tmp_path_factory) -> tuple[DemoConfig, Path]:
         labelled=1,
         rollouts=2,
         calibration_rollouts=2,
+        encoder_epochs=1,
         policy_epochs=1,
         detector_epochs=1,
         horizon=30,
@@ -52,6 +53,7 @@ def pipeline(tmp_path_factory) -> tuple[DemoConfig, Path]:
     report, times = run_demo(cfg)
     assert set(times) >= {
         "collect base split",
+        "train scene encoder",
         "train policies",
         "train detectors",
         "evaluate",
@@ -112,10 +114,11 @@ def test_detectors_of_another_policy_or_task_are_refused(pipeline):
 def test_a_rerun_reuses_finished_stages(pipeline):
     cfg, _ = pipeline
     checkpoint = RunLayout(cfg.runs).policy(TASK, "naive_dc")
-    before = checkpoint.stat().st_mtime_ns
+    encoder = RunLayout(cfg.runs).encoder(TASK)
+    before = checkpoint.stat().st_mtime_ns, encoder.stat().st_mtime_ns
     _, times = run_demo(cfg)
     assert times["collect base split"] < 30 and times["roll out policies"] < 30, times
-    assert checkpoint.stat().st_mtime_ns == before  # not retrained
+    assert (checkpoint.stat().st_mtime_ns, encoder.stat().st_mtime_ns) == before  # not retrained
 
 
 @pytest.mark.parametrize(
@@ -236,3 +239,65 @@ def test_heldout_auroc_script_scores_every_detector_of_a_runs_layout(pipeline, t
         }
     arrays = np.load(out.with_suffix(".npz"))
     assert len(arrays["naive_dc/probe"]) == len(arrays["labels"]) == arrays["lengths"].sum()
+
+
+def command_line(cfg: DemoConfig) -> list[str]:
+    """The flags that make `aed demo` build `cfg`."""
+    import dataclasses
+
+    args = []
+    for field in dataclasses.fields(cfg):
+        value, flag = getattr(cfg, field.name), "--" + field.name.replace("_", "-")
+        if isinstance(value, bool):
+            args.append(flag if value else "--no-" + flag[2:])
+        elif isinstance(value, (tuple, list)):
+            args += [flag, *map(str, value)]
+        elif value is not None:
+            args += [flag, str(value)]
+    return args
+
+
+@pytest.mark.slow
+def test_demo_as_a_command_reuses_the_finished_stages(pipeline):
+    cfg, report = pipeline
+    checkpoint = RunLayout(cfg.runs).policy(TASK, "naive_dc")
+    before = checkpoint.stat().st_mtime_ns
+    result = subprocess.run(
+        [AED, "demo", *command_line(cfg)], capture_output=True, text=True, timeout=900
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "| PressButton / naive_dc |" in result.stdout and "stage times:" in result.stdout
+    assert checkpoint.stat().st_mtime_ns == before  # not retrained
+    assert json.loads((cfg.runs / "demo.json").read_text())["report"] == str(report)
+
+
+@pytest.mark.slow
+def test_monitor_as_a_command_stops_at_the_alarm_and_writes_its_video(pipeline, tmp_path):
+    cfg, _ = pipeline
+    video = tmp_path / "monitor.mp4"
+    args = ["--task", TASK, "--policy", "naive_dc", "--detector", "lstm_ed", "--env-index", "0"]
+    result = subprocess.run(
+        [AED, "monitor", *args, "--num-demos", "1", "--threshold", "0", "--runs", str(cfg.runs)]
+        + ["--out", str(video)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert f"{video}: " in result.stdout and "alarms=1" in result.stdout, result.stdout
+    assert video.stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_report_as_a_command_writes_the_table_of_an_evaluation(pipeline, tmp_path):
+    cfg, _ = pipeline
+    results = RunLayout(cfg.runs).evaluation(TASK, "naive_dc") / "results.json"
+    out = tmp_path / "report"
+    result = subprocess.run(
+        [AED, "report", "--results", str(results), "--out", str(out), "--no-plots"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "| PressButton / naive_dc |" in (out / "report.md").read_text()

@@ -29,6 +29,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from aed_models.data import PROPRIO_DIM, proprio_from_obs, to_frames
+from aed_models.nn.batch import check_sequences
 from aed_models.nn.encoders import build_visual_head, encode_frames
 from aed_models.nn.mlp import mlp
 from aed_models.policies.configuration_base import PolicyConfig
@@ -61,32 +62,11 @@ class Actor(nn.Module):
         return self.pos(h), self.grip(h)
 
 
-def check_sequences(batch: Any, what: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """(frames (B, L, 4, H, W), mask (B, L)) of a padded group, mask all-True when absent."""
-    if not isinstance(batch, dict) or "frames" not in batch:
-        raise ValueError(f"{what}: expected a dict with 'frames' (B, L, 4, H, W) and 'mask' (B, L)")
-    frames = batch["frames"]
-    if frames.dim() != 5 or frames.shape[2] != 4:
-        raise ValueError(
-            f"{what}['frames'] of shape {tuple(frames.shape)}: expected (B, L, 4, H, W)"
-        )
-    mask = batch.get("mask")
-    if mask is None:
-        mask = torch.ones(frames.shape[:2], dtype=torch.bool, device=frames.device)
-    if mask.shape != frames.shape[:2]:
-        raise ValueError(
-            f"{what}['mask'] of shape {tuple(mask.shape)}: expected {tuple(frames.shape[:2])}"
-        )
-    mask = mask.bool()
-    if not mask[:, 0].all():
-        raise ValueError(f"{what}: every sequence needs at least one frame (mask[:, 0] all True)")
-    return frames, mask
-
-
 def thin_sequences(
     frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None, limit: int
 ):
-    """At most `limit` frames of each padded sequence, evenly spread, its first and last kept."""
+    """At most `limit` frames (or features) of each padded sequence, evenly spread, its first
+    and last kept."""
     lengths = mask.sum(1)
     if limit == 0 or int(lengths.max()) <= limit:
         return frames, mask, proprio
@@ -97,7 +77,8 @@ def thin_sequences(
     idx = torch.where(new_mask, idx, 0)
     rows = torch.arange(len(mask), device=mask.device)[:, None]
     proprio = None if proprio is None else proprio[rows, idx] * new_mask[..., None]
-    return frames[rows, idx] * new_mask[..., None, None, None], new_mask, proprio
+    keep_mask = new_mask.view(*new_mask.shape, *(1,) * (frames.dim() - 2))
+    return frames[rows, idx] * keep_mask, new_mask, proprio
 
 
 def check_proprio(batch: dict, what: str, needed: bool) -> torch.Tensor | None:
@@ -105,7 +86,8 @@ def check_proprio(batch: dict, what: str, needed: bool) -> torch.Tensor | None:
     if not needed:
         return None
     proprio = batch.get("proprio")
-    shape = (*batch["frames"].shape[:2], PROPRIO_DIM)
+    inputs = batch["features"] if "features" in batch else batch["frames"]
+    shape = (*inputs.shape[:2], PROPRIO_DIM)
     if proprio is None or tuple(proprio.shape) != shape:
         got = "none" if proprio is None else tuple(proprio.shape)
         raise ValueError(
@@ -158,8 +140,15 @@ class DCPolicy(nn.Module):
         proprio: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Per-frame features: frames (B, L, 4, H, W) or (B, 4, H, W) -> (B, L, out_dim) or
-        (B, out_dim), the visual head's plus the embedded proprioception."""
-        f = self.visual(frames) if frames.dim() == 4 else encode_frames(self.visual, frames, mask)
+        (B, out_dim), the visual head's plus the embedded proprioception. Given the frozen visual
+        head's cached features ((B, L, out_dim) or (B, out_dim)) instead of frames, it adds the
+        proprioception alone."""
+        if frames.dim() <= 3:
+            f = frames
+        elif frames.dim() == 4:
+            f = self.visual(frames)
+        else:
+            f = encode_frames(self.visual, frames, mask)
         if self.proprio_embed is not None:
             if proprio is None:
                 raise ValueError(
@@ -198,8 +187,8 @@ class DCPolicy(nn.Module):
 
     def _features(self, rollouts: dict, demos: dict) -> tuple[torch.Tensor, PolicyFeatures]:
         memory = self.encode_demos(*self.demo_inputs(demos))
-        frames, mask = check_sequences(rollouts, "rollouts")
-        f = self.embed(frames, mask, check_proprio(rollouts, "rollouts", self.config.proprio))
+        inputs, mask = check_sequences(rollouts, "rollouts")
+        f = self.embed(inputs, mask, check_proprio(rollouts, "rollouts", self.config.proprio))
         history, task = self.sequence(f, mask, memory)
         return f, PolicyFeatures(history, task)
 

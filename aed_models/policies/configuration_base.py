@@ -33,6 +33,9 @@ class PolicyConfig:
             ends (`aed_models.data.stage_subgoals`, from the stored TCP poses), and the actor
             reads that prediction: behaviour cloning alone did not teach the small CNN where
             the target is (on under `mini`; the README's "Measured here" says how much it helps).
+        frozen_encoder: the visual head is the task's scene encoder (`aed train-encoder`, trained
+            to say where things are), frozen; training reads its cached per-frame features. The
+            paper trains its heads end to end (off under `paper`, on under `mini`).
         demo_frames: encode at most this many frames of each demonstration, evenly spread
             (first and last kept), in training and online alike; 0 = every frame. It bounds the
             cost of DCT's and SCAN's demonstration memory (NaiveDC reads only the ends).
@@ -52,6 +55,7 @@ class PolicyConfig:
     proprio: bool = False
     demo_frames: int = 0
     subgoal_weight: float = 0.0
+    frozen_encoder: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.visual, dict):
@@ -80,11 +84,12 @@ class PolicyConfig:
     @classmethod
     def preset(cls: type[C], profile: str) -> C:
         """The sizes of a profile: `paper` the paper's (ResNet18 head, RGB-D only); `mini` and
-        `demo` CPU-sized (small CNN head, no dropout, proprioception, a stage-target head)."""
+        `demo` CPU-sized (the task's frozen scene encoder as the visual head, proprioception, a
+        stage-target head)."""
         if check_profile(profile) == "paper":
             return cls(visual=VisualHeadConfig(arch="resnet18", out_dim=256, dropout=0.5))
         small = VisualHeadConfig(arch="small_cnn", out_dim=256, dropout=0.0, width=32)
-        return cls(visual=small, proprio=True, subgoal_weight=1.0)
+        return cls(visual=small, proprio=True, subgoal_weight=1.0, frozen_encoder=True)
 
     @classmethod
     def recipe(cls, profile: str, task: str) -> PolicyRecipe:
@@ -111,7 +116,7 @@ class PolicyConfig:
             max_frames=cls.mini_max_frames,
             composition=cls.demo_composition if profile == "demo" else cls.mini_composition,
             rollout_frames=cls.mini_rollout_frames,
-            shift=4,
+            shift=0,  # the frozen encoder was trained shifted; its features are cached
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -39,6 +39,8 @@ from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampl
 from aed_models.layout import RunLayout
 from aed_models.policies import FAMILY, POLICIES, PolicyConfig, make_policy
 from aed_models.recipe import PolicyRecipe, Profile, check_profile
+from aed_models.train.frame_features import frame_features
+from aed_tasks.locks import locks_out_folder
 
 logger = logging.getLogger(__name__)
 
@@ -62,6 +64,7 @@ class TrainPolicyConfig(PolicyRecipe):
         progress: show a progress bar.
         device: torch device.
         workers: DataLoader worker processes (0 = read in the main process).
+        encoder: the scene encoder checkpoint a `frozen_encoder` policy starts from.
     """
 
     task: str
@@ -75,6 +78,7 @@ class TrainPolicyConfig(PolicyRecipe):
     progress: bool = True
     device: str = "cpu"
     workers: int = 0
+    encoder: Path = Path("runs/PressButton/encoder/encoder.pt")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -82,7 +86,7 @@ class TrainPolicyConfig(PolicyRecipe):
         check_profile(self.profile)
         if self.num_envs < 0 or self.workers < 0:
             raise ValueError(f"num_envs={self.num_envs}, workers={self.workers}: must be >= 0")
-        self.data, self.out = Path(self.data), Path(self.out)
+        self.data, self.out, self.encoder = Path(self.data), Path(self.out), Path(self.encoder)
 
     @classmethod
     def from_preset(
@@ -103,6 +107,7 @@ class TrainPolicyConfig(PolicyRecipe):
             "profile": profile,
             "data": layout.data(task, "base"),
             "out": layout.policy(task, policy).parent,
+            "encoder": layout.encoder(task),
         }
         return cls(**{**preset, **overrides})
 
@@ -221,11 +226,34 @@ def prepare(batch: dict[str, Any], cfg: TrainPolicyConfig, device: torch.device)
     out = {}
     for key in ("demos", "rollouts"):
         group = {k: v.to(device) for k, v in batch[key].items() if isinstance(v, torch.Tensor)}
-        group["frames"] = random_shift(group["frames"], cfg.shift, generator)
+        if "frames" in group:  # cached features of a frozen head are not shifted
+            group["frames"] = random_shift(group["frames"], cfg.shift, generator)
         out[key] = group
     return out
 
 
+def freeze_encoder(policy: torch.nn.Module, path: Path) -> str:
+    """Load the scene encoder's visual head into `policy.visual` and freeze it; returns the
+    encoder checkpoint's sha256."""
+    from aed_models.encoder import load_encoder
+
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"{path}: no scene encoder (this policy's visual head is the frozen scene encoder); "
+            "train it first with `aed train-encoder`"
+        )
+    encoder = load_encoder(path)
+    if encoder.config.visual != policy.config.visual:
+        raise ValueError(
+            f"{path}: a scene encoder with visual head {encoder.config.visual}, the policy's is "
+            f"{policy.config.visual}"
+        )
+    policy.visual.load_state_dict(encoder.visual.state_dict())
+    policy.visual.requires_grad_(False)
+    return encoder.sha256
+
+
+@locks_out_folder  # one training per out folder (aed_tasks.locks)
 def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None) -> Path:
     """Train, checkpointing every epoch; returns the final checkpoint `<out>/policy.pt`.
 
@@ -240,36 +268,53 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
     # data
     episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
     check_task(episodes, cfg.task, cfg.data)
-    composition = Composition(*cfg.composition)
-    dataset = EnvironmentIterations(
-        episodes,
-        composition,
-        max_frames=cfg.max_frames or None,
-        seed=cfg.seed,
-        rollout_frames=cfg.rollout_frames,
-    )
-    logger.info(
-        "%s on %s: %d environments, %d episodes", cfg.policy, cfg.data, len(dataset), len(episodes)
-    )
 
-    # model and optimiser
+    # model, with the scene encoder as its frozen visual head when the config says so
     policy_cfg = policy_cfg or POLICIES.preset(cfg.policy, cfg.profile)
     policy = make_policy(cfg.policy, policy_cfg).to(device)
-    optimizer = torch.optim.RMSprop(policy.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    features, encoder_sha = None, None
+    if policy_cfg.frozen_encoder:
+        encoder_sha = freeze_encoder(policy, cfg.encoder)
+        features = frame_features(
+            policy.visual, encoder_sha, episodes, cfg.encoder.parent / "features", cfg.progress
+        )
+    optimizer = torch.optim.RMSprop(
+        [p for p in policy.parameters() if p.requires_grad],
+        lr=cfg.lr,
+        weight_decay=cfg.weight_decay,
+    )
     train_config = {
         k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()
     }
     provenance = {
         "train_config": train_config,
         "data_key": data_key(episodes),
+        "encoder_sha256": encoder_sha,
         **trained_on(episodes),
     }
+
+    dataset = EnvironmentIterations(
+        episodes,
+        Composition(*cfg.composition),
+        max_frames=cfg.max_frames or None,
+        seed=cfg.seed,
+        rollout_frames=cfg.rollout_frames,
+        features=features,
+    )
+    logger.info(
+        "%s on %s: %d environments, %d episodes", cfg.policy, cfg.data, len(dataset), len(episodes)
+    )
 
     # resume, or start from the data's action statistics
     start_epoch, log = 0, []
     if cfg.resume and last_path.exists():
         ckpt = load_checkpoint(last_path, family=FAMILY, name=cfg.policy)
         check_same_training(last_path, ckpt.extra, train_config, provenance["data_key"])
+        if ckpt.extra.get("encoder_sha256") != encoder_sha:
+            raise ValueError(
+                f"{last_path}: trained on another scene encoder than {cfg.encoder}; "
+                "pass --no-resume to start over, or another --out"
+            )
         if ckpt.config != policy.config.to_dict():
             raise ValueError(
                 f"{last_path}: trained with another {cfg.policy} config ({ckpt.config}); "

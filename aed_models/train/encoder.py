@@ -1,0 +1,288 @@
+"""Train the scene encoder: regress where things are (`aed_models.data.scene_state`) from frames.
+
+Read top to bottom: config -> data -> model -> (resume) -> epochs -> final checkpoint.
+
+Every stored frame carries the full env state, so every frame of every episode (demonstrations,
+successes, failures) is a labelled example of where the TCP, the stage target and the task
+objects are. An epoch takes `max_frames` random frames of every training episode, shuffled
+into updates of `batch_episodes` episodes, each sequence randomly shifted; Adam minimises the
+MSE of the standardised state. `<out>/last.pt` after every epoch (resume), `<out>/encoder.pt`
+at the end, `<out>/train_log.json` the per-epoch losses.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from aed_models.checkpoint import load_checkpoint, save_checkpoint
+from aed_models.data import EpisodeReader, load_episodes, scene_state, scene_state_names
+from aed_models.encoder import FAMILY, NAME, EncoderConfig, EncoderRecipe
+from aed_models.encoder.modeling_encoder import SceneEncoder
+from aed_models.layout import RunLayout
+from aed_models.recipe import Profile, check_profile
+from aed_models.train.policy import (
+    check_same_training,
+    check_task,
+    data_key,
+    random_shift,
+    seed_everything,
+    select_environments,
+    trained_on,
+)
+from aed_tasks import trajectory
+from aed_tasks.locks import locks_out_folder
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class TrainEncoderConfig(EncoderRecipe):
+    """The scene encoder of one task, on its base collection: the recipe's fields and what to
+    train (build it with `from_preset`).
+
+    Args:
+        task: task name (e.g. PressButton).
+        profile: the preset of the encoder's size and recipe (mini, demo).
+        data: collection folder.
+        out: output folder (checkpoints and log).
+        num_envs: use the first N base environments (0: all).
+        seed: seeds the model, the draws and the augmentation.
+        resume: continue from <out>/last.pt when it exists.
+        progress: show a progress bar.
+    """
+
+    task: str
+    profile: Profile
+    data: Path
+    out: Path
+    num_envs: int = 0
+    seed: int = 0
+    resume: bool = True
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if check_profile(self.profile) == "paper":
+            raise ValueError("profile='paper': the paper trains its visual heads end to end")
+        if self.num_envs < 0:
+            raise ValueError(f"num_envs={self.num_envs}: must be >= 0")
+        self.data, self.out = Path(self.data), Path(self.out)
+
+    @classmethod
+    def from_preset(
+        cls,
+        task: str = "PressButton",
+        profile: str = "mini",
+        runs: Path = Path("runs"),
+        **overrides: Any,
+    ) -> TrainEncoderConfig:
+        layout = RunLayout(runs)
+        preset = {
+            **dataclasses.asdict(EncoderRecipe.preset(profile)),
+            "task": task,
+            "profile": profile,
+            "data": layout.data(task, "base"),
+            "out": layout.encoder(task).parent,
+        }
+        return cls(**{**preset, **overrides})
+
+
+class SceneFrames:
+    """Frames of episodes with their scene state (`scene_state`, read once per episode)."""
+
+    def __init__(self, episodes: Sequence[trajectory.EpisodeRef], camera: str = "front"):
+        self.episodes = list(episodes)
+        self.reader = EpisodeReader(camera)
+        self.states = [read_scene_state(ref) for ref in self.episodes]
+
+    def draw(self, i: int, indices: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """(frames (n, 4, H, W), states (n, D)) of episode `i` at frame `indices`."""
+        seq = self.reader.read(self.episodes[i], indices)
+        return seq.frames, torch.from_numpy(self.states[i][indices])
+
+
+def read_scene_state(ref: trajectory.EpisodeRef) -> np.ndarray:
+    with h5py.File(ref.path, "r") as h5:
+        return scene_state(h5[ref.traj])
+
+
+def state_names(ref: trajectory.EpisodeRef) -> tuple[str, ...]:
+    with h5py.File(ref.path, "r") as h5:
+        return tuple(scene_state_names(h5[ref.traj]))
+
+
+def epoch_updates(
+    num_episodes: int, lengths: Sequence[int], recipe: EncoderRecipe, seed: int, epoch: int
+) -> list[list[tuple[int, np.ndarray]]]:
+    """The epoch's updates: groups of `batch_episodes` episodes, each with its random frames."""
+    rng = np.random.default_rng([seed, epoch])
+    order = rng.permutation(num_episodes)
+    picks = [
+        (int(i), np.sort(rng.choice(lengths[i], min(recipe.max_frames, lengths[i]), replace=False)))
+        for i in order
+    ]
+    step = recipe.batch_episodes
+    return [picks[k : k + step] for k in range(0, len(picks), step)]
+
+
+def update_batch(
+    data: SceneFrames,
+    update: list[tuple[int, np.ndarray]],
+    recipe: EncoderRecipe,
+    generator: torch.Generator,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """One update's frames (augmented per episode) and scene states."""
+    frames, states = [], []
+    for i, indices in update:
+        f, s = data.draw(i, indices)
+        frames.append(random_shift(f[None], recipe.shift, generator)[0])
+        states.append(s)
+    return torch.cat(frames), torch.cat(states)
+
+
+@locks_out_folder  # one training per out folder (aed_tasks.locks)
+def train_encoder(cfg: TrainEncoderConfig, encoder_cfg: EncoderConfig | None = None) -> Path:
+    """Train, checkpointing every epoch; returns the final checkpoint `<out>/encoder.pt`.
+
+    `encoder_cfg` replaces the profile's encoder config (tests use tiny ones)."""
+    out: Path = cfg.out
+    out.mkdir(parents=True, exist_ok=True)
+    last_path, final_path, log_path = out / "last.pt", out / "encoder.pt", out / "train_log.json"
+    seed_everything(cfg.seed)
+
+    # data
+    episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
+    check_task(episodes, cfg.task, cfg.data)
+    data = SceneFrames(episodes)
+    lengths = [ref.num_frames for ref in episodes]
+    logger.info(
+        "scene encoder on %s: %d episodes, %d frames", cfg.data, len(episodes), sum(lengths)
+    )
+
+    # model and optimiser
+    config = dataclasses.replace(
+        encoder_cfg or EncoderConfig.preset(cfg.profile), state_names=state_names(episodes[0])
+    )
+    encoder = SceneEncoder(config)
+    optimizer = torch.optim.Adam(encoder.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    train_config = {
+        k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()
+    }
+    provenance = {
+        "train_config": train_config,
+        "data_key": data_key(episodes),
+        **trained_on(episodes),
+    }
+
+    start_epoch, log = 0, []
+    if cfg.resume and last_path.exists():
+        ckpt = load_checkpoint(last_path, family=FAMILY, name=NAME)
+        check_same_training(last_path, ckpt.extra, train_config, provenance["data_key"])
+        encoder.load_state_dict(ckpt.state_dict)
+        optimizer.load_state_dict(ckpt.extra["optimizer"])
+        torch.set_rng_state(ckpt.extra["torch_rng"])
+        start_epoch, log = ckpt.extra["epoch"], ckpt.extra["log"]
+        logger.info("resumed from %s after epoch %d", last_path, start_epoch)
+        if start_epoch >= cfg.epochs and final_path.exists():
+            return final_path
+    else:
+        encoder.set_state_stats(torch.from_numpy(np.concatenate(data.states)))
+
+    for epoch in range(start_epoch, cfg.epochs):
+        encoder.train()
+        generator = torch.Generator().manual_seed(
+            int(np.random.default_rng([cfg.seed, epoch, 1]).integers(2**62))
+        )
+        updates = epoch_updates(len(episodes), lengths, cfg, cfg.seed, epoch)
+        total, start = 0.0, time.perf_counter()
+        bar = tqdm(
+            updates,
+            desc=f"encoder epoch {epoch + 1}/{cfg.epochs}",
+            disable=not cfg.progress,
+            leave=False,
+        )
+        for update in bar:
+            frames, states = update_batch(data, update, cfg, generator)
+            _, predicted = encoder(frames)
+            loss = F.mse_loss(predicted, (states - encoder.state_mean) / encoder.state_std)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            total += loss.item()
+            bar.set_postfix(loss=f"{loss.item():.3f}")
+        entry = {
+            "epoch": epoch + 1,
+            "state_mse": total / len(updates),
+            "seconds": round(time.perf_counter() - start, 2),
+        }
+        log.append(entry)
+        logger.info("epoch %d/%d: %s", epoch + 1, cfg.epochs, entry)
+        extra = {
+            "epoch": epoch + 1,
+            "optimizer": optimizer.state_dict(),
+            "torch_rng": torch.get_rng_state(),
+            "log": log,
+            **provenance,
+        }
+        save_checkpoint(
+            last_path,
+            family=FAMILY,
+            name=NAME,
+            config=config.to_dict(),
+            state_dict=encoder.state_dict(),
+            extra=extra,
+        )
+        log_path.write_text(json.dumps(log, indent=1))
+
+    sha = save_checkpoint(
+        final_path,
+        family=FAMILY,
+        name=NAME,
+        config=config.to_dict(),
+        state_dict=encoder.state_dict(),
+        extra={"epoch": cfg.epochs, "log": log, **provenance},
+    )
+    logger.info("wrote %s (sha256 %s)", final_path, sha[:12])
+    return final_path
+
+
+@torch.no_grad()
+def localization_errors(
+    encoder: SceneEncoder,
+    episodes: Sequence[trajectory.EpisodeRef],
+    every: int = 4,
+    mean_guess: bool = False,
+) -> dict[str, float]:
+    """Mean error of each predicted position (cm, per entity: `tcp`, `subgoal`, objects) and
+    joint (its units x 100) over every `every`-th frame of `episodes`. `mean_guess` scores the
+    training mean instead (what a head that learned nothing predicts)."""
+    data = SceneFrames(episodes)
+    names = encoder.config.state_names
+    entities = dict.fromkeys(n.split(".")[0] for n in names)
+    groups = {
+        e: [k for k, n in enumerate(names) if n in (f"{e}.x", f"{e}.y", f"{e}.z")] for e in entities
+    }
+    groups.update({n: [k] for k, n in enumerate(names) if ".q" in n})
+    errors: dict[str, list[np.ndarray]] = {name: [] for name in groups}
+    for i, ref in enumerate(episodes):
+        frames, states = data.draw(i, np.arange(0, ref.num_frames, every))
+        predicted = (
+            encoder.state_mean.expand_as(states) if mean_guess else encoder.predict_state(frames)
+        )
+        diff = (predicted - states).numpy()
+        for name, cols in groups.items():
+            errors[name].append(np.linalg.norm(diff[:, cols], axis=1))
+    return {name: float(np.concatenate(e).mean() * 100) for name, e in errors.items()}

@@ -1,0 +1,123 @@
+"""The policies' table: training data and time, action loss, novel success rate beside the paper's.
+
+One row per (task, policy): the rollout folder of `aed rollout` and the checkpoint it names.
+Writes JSON (one record per row) and a Markdown table:
+
+    python scripts/policy_table.py --runs runs/r20 --tasks PressButton \
+        --out results/mini/policies.json
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import tyro
+
+from aed_eval.metrics import rate_interval
+from aed_models.layout import RunLayout
+from aed_tasks import trajectory
+
+logger = logging.getLogger("policy_table")
+
+# Paper, appendix table "FSI policy performance": success rate and its std over novel envs (%).
+PAPER_SUCCESS = {
+    "CloseDrawer": {"naive_dc": (91.11, 20.85), "dct": (80.56, 26.71), "scan": (88.33, 13.94)},
+    "PressButton": {"naive_dc": (51.94, 18.79), "dct": (80.56, 11.65), "scan": (75.56, 12.68)},
+    "PickPlace": {"naive_dc": (55.00, 24.98), "dct": (64.05, 19.77), "scan": (71.19, 15.38)},
+    "MoveGlassCup": {"naive_dc": (42.25, 34.04), "dct": (88.00, 14.87), "scan": (58.25, 20.33)},
+    "OrganizeTable": {"naive_dc": (12.20, 13.93), "dct": (79.00, 9.27), "scan": (66.60, 23.18)},
+    "BackToBox": {"naive_dc": (8.89, 9.21), "dct": (29.17, 9.46), "scan": (58.89, 10.87)},
+    "FactoryPacking": {"naive_dc": (45.42, 30.92), "dct": (88.75, 7.11), "scan": (63.75, 33.11)},
+}
+
+
+@dataclass
+class Config:
+    runs: Path = Path("runs")
+    """Runs folder (the layout of aed_models.layout)."""
+    tasks: tuple[str, ...] = ("PressButton",)
+    policies: tuple[str, ...] = ("naive_dc", "dct", "scan")
+    out: Path = Path("results/mini/policies.json")
+    """JSON records; the Markdown table goes beside it (.md)."""
+
+
+def training(checkpoint: Path) -> dict:
+    """What a policy checkpoint says of its training: data, time, first and last losses."""
+    extra = torch.load(checkpoint, weights_only=True, map_location="cpu")["extra"]
+    log = extra["log"]
+    first, last = log[: min(5, len(log))], log[-min(5, len(log)) :]
+    return {
+        "train_envs": len(extra.get("train_envs", [])),
+        "epochs": len(log),
+        "train_seconds": round(sum(e["seconds"] for e in log), 1),
+        "pos_mse_first": float(np.mean([e["pos_mse"] for e in first])),
+        "pos_mse_last": float(np.mean([e["pos_mse"] for e in last])),
+        "grip_acc_last": float(np.mean([e["grip_acc"] for e in last])),
+    }
+
+
+def row(layout: RunLayout, task: str, policy: str) -> dict | None:
+    rollouts = layout.rollouts(task, policy, "novel")
+    checkpoint = layout.policy(task, policy)
+    if not (rollouts.is_dir() and checkpoint.is_file()):
+        logger.info("%s / %s: no rollouts or no checkpoint, skipped", task, policy)
+        return None
+    outcomes = np.asarray(
+        [r.success for r in trajectory.scan_collection(rollouts).episodes()], dtype=float
+    )
+    low, high = rate_interval(outcomes)
+    counts = {}
+    for ref in trajectory.scan_collection(layout.data(task, "base")).episodes():
+        counts[ref.role] = counts.get(ref.role, 0) + 1
+    paper = PAPER_SUCCESS.get(task, {}).get(policy)
+    return {
+        "task": task,
+        "policy": policy,
+        **training(checkpoint),
+        "collection": counts,
+        "rollouts": len(outcomes),
+        "successes": int(outcomes.sum()),
+        "success_rate": float(outcomes.mean()),
+        "interval": [float(low), float(high)],
+        "paper_success": paper,
+    }
+
+
+def markdown(rows: list[dict]) -> str:
+    lines = [
+        "| task | policy | training | action loss (share of variance), first -> last 5 epochs "
+        "| novel success rate [95%] | paper |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        paper = (
+            "" if r["paper_success"] is None else "{:.2f} +- {:.2f}%".format(*r["paper_success"])
+        )
+        lines.append(
+            f"| {r['task']} | {r['policy']} | {r['train_envs']} envs, {r['epochs']} epochs, "
+            f"{r['train_seconds'] / 60:.0f} min | {r['pos_mse_first']:.2f} -> "
+            f"{r['pos_mse_last']:.2f} | {100 * r['success_rate']:.1f}% "
+            f"[{100 * r['interval'][0]:.1f}, {100 * r['interval'][1]:.1f}] "
+            f"({r['successes']}/{r['rollouts']}) | {paper} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(cfg: Config) -> list[dict]:
+    layout = RunLayout(cfg.runs)
+    rows = [r for t in cfg.tasks for p in cfg.policies if (r := row(layout, t, p)) is not None]
+    cfg.out.parent.mkdir(parents=True, exist_ok=True)
+    cfg.out.write_text(json.dumps(rows, indent=1) + "\n")
+    cfg.out.with_suffix(".md").write_text(markdown(rows))
+    print(markdown(rows))
+    return rows
+
+
+if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    main(tyro.cli(Config))
