@@ -10,8 +10,10 @@ setup:
 demo: setup
 	$(VENV)/bin/aed demo
 
+# Two pytest workers (the machines here have two cores), each test file whole on one worker
+# so that its module fixtures are built once.
 test: setup
-	$(PY) -m pytest -q -p no:cacheprovider
+	$(PY) -m pytest -q -p no:cacheprovider -n 2 --dist loadfile
 
 lint: setup
 	$(VENV)/bin/ruff check .

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -28,10 +29,12 @@ from aed_eval.scoring import (
     DETECTOR_NAMES,
     Demonstrations,
     EpisodeScorer,
+    LoadedDetector,
     load_checked_detector,
 )
 from aed_models.layout import RunLayout
 from aed_tasks import trajectory
+from aed_tasks.locks import folder_lock
 
 logger = logging.getLogger(__name__)
 
@@ -155,9 +158,10 @@ def needed(alpha: float) -> int:
 
 
 def calibrate_detectors(cfg: CalibrateConfig) -> dict[str, dict[str, Any]]:
-    """Score the held-out successes by every detector; write each detector's thresholds."""
-    from tqdm.auto import tqdm
+    """Score the held-out successes by every detector; write each detector's thresholds.
 
+    Each detector's folder is locked meanwhile: a training writing there refuses, or is refused.
+    """
     layout = RunLayout(cfg.runs)
     policy, policy_sha = load_policy_checked(layout.policy(cfg.task, cfg.policy))
     detectors = [
@@ -166,6 +170,17 @@ def calibrate_detectors(cfg: CalibrateConfig) -> dict[str, dict[str, Any]]:
         )
         for name in cfg.detectors
     ]
+    with ExitStack() as held:
+        for d in detectors:
+            held.enter_context(folder_lock(d.path.parent))
+        return _calibrate(cfg, policy, policy_sha, detectors)
+
+
+def _calibrate(
+    cfg: CalibrateConfig, policy: Any, policy_sha: str, detectors: list[LoadedDetector]
+) -> dict[str, dict[str, Any]]:
+    from tqdm.auto import tqdm
+
     models = {
         f"policy {cfg.policy}": policy.checkpoint_extra,
         **{f"detector {d.name}": d.model.checkpoint_extra for d in detectors},

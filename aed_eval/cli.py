@@ -5,7 +5,8 @@ from __future__ import annotations
 import logging
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 logger = logging.getLogger("aed")
@@ -91,6 +92,31 @@ def parse_preset_command(name: str, argv: list[str]) -> Any:
     )
 
 
+class ConfigRejected(ValueError):
+    """A config's own validation refused the parsed flags (its message names the problem)."""
+
+
+@contextmanager
+def one_line_config_errors() -> Iterator[None]:
+    """tyro draws a box around a config's validation error; raise it as one line instead.
+
+    Uses tyro's parse-error hook where this tyro has it (1.0.17 does); else tyro's box stays.
+    """
+    import tyro
+
+    register = getattr(getattr(tyro, "_errors", None), "on_parse_error", None)
+    if register is None:
+        yield
+        return
+
+    def hook(event: Any) -> None:
+        if type(event).__name__ == "InstantiationFailure" and getattr(event, "message", None):
+            raise ConfigRejected(event.message)
+
+    with register(hook):
+        yield
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `aed` console script.
 
@@ -107,9 +133,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         argv = sys.argv[1:] if argv is None else list(argv)
         if argv and argv[0] in _preset_commands():
-            result = _preset_commands()[argv[0]][2](parse_preset_command(argv[0], argv[1:]))
+            with one_line_config_errors():
+                cfg = parse_preset_command(argv[0], argv[1:])
+            result = _preset_commands()[argv[0]][2](cfg)
         else:
-            result = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="aed")
+            with one_line_config_errors():
+                result = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="aed")
     except (
         ValueError,
         KeyError,

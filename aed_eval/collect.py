@@ -317,15 +317,18 @@ class ExpertRunner(EpisodeRunner):
                 self.cfg.seed, shard.task, shard.split, shard.env_index, shard.group, k, attempt
             )
             try:
-                episode = solve(
-                    env, seed, error=error, env_index=shard.env_index, suboptimal=shard.suboptimal
+                episode = solve(  # frames=False: the step recorder around `env` keeps them
+                    env,
+                    seed,
+                    error=error,
+                    env_index=shard.env_index,
+                    suboptimal=shard.suboptimal,
+                    frames=False,
                 )
             except RuntimeError as e:  # e.g. a script that never reached its error's moment
                 problem = f"{type(e).__name__}: {e}"
             else:
                 recorded = env.take()
-                episode.rgb.clear()  # the recorder holds the frames: free the copy
-                episode.depth.clear()
                 problem = _rejection(episode, shard)
                 if not problem:
                     return (

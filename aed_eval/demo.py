@@ -14,6 +14,7 @@ import dataclasses
 import json
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Annotated, Any
@@ -127,198 +128,203 @@ class DemoConfig(Protocol):
         return tuple(range(self.train_envs, self.train_envs + self.calibration_envs))
 
 
-class Stages:
-    """Runs the stages in order, timing each (seconds in `times`)."""
+@dataclass
+class Stage:
+    """One stage of the demo: its name and its jobs, each a function and the config it runs."""
 
-    def __init__(self, cfg: DemoConfig):
-        self.cfg = cfg
-        self.layout = RunLayout(cfg.runs)
-        self.times: dict[str, float] = {}
+    name: str
+    jobs: list[tuple[Callable[[Any], Any], Any]]
 
-    def timed(self, name: str, fn: Any, *args: Any) -> Any:
-        logger.info("demo: %s", name)
-        start = time.perf_counter()
-        result = fn(*args)
-        self.times[name] = round(time.perf_counter() - start, 1)
-        logger.info("demo: %s done in %.0f s", name, self.times[name])
-        return result
 
-    def collect_base(self) -> None:
-        from aed_eval.collect import CollectConfig, run_collection
+def collection(c: DemoConfig, split: str, **fields: Any) -> Any:
+    """A collection of the demo's `split`: its task, profile, runs, workers and seed."""
+    from aed_eval.collect import CollectConfig
 
-        c = self.cfg
-        common = {
-            "task": c.task,
-            "split": "base",
-            "profile": c.profile,
-            "runs": c.runs,
-            "num_demos": c.num_demos,
-            "num_successes": c.num_successes,
-            "workers": c.workers,
-            "seed": c.seed,
-            "shard_size": 5,
-        }
-        run_collection(
-            CollectConfig.from_preset(
-                **common, envs=tuple(range(c.train_envs)), num_failures=c.num_failures
-            )
+    return CollectConfig.from_preset(
+        task=c.task,
+        split=split,
+        profile=c.profile,
+        runs=c.runs,
+        workers=c.workers,
+        seed=c.seed,
+        shard_size=5,
+        **fields,
+    )
+
+
+def base_collections(c: DemoConfig) -> list[Any]:
+    """The training environments (with injected failures), then the calibration ones."""
+    counts = {"num_demos": c.num_demos, "num_successes": c.num_successes}
+    return [
+        collection(
+            c, "base", envs=tuple(range(c.train_envs)), num_failures=c.num_failures, **counts
+        ),
+        collection(c, "base", envs=c.calibration_env_indices, num_failures=0, **counts),
+    ]
+
+
+def encoder_trainings(c: DemoConfig) -> list[Any]:
+    """The scene encoder, when a policy of the demo reads it frozen."""
+    from aed_models.policies import POLICIES
+    from aed_models.train.encoder import TrainEncoderConfig
+
+    if not any(POLICIES.preset(p, c.profile).frozen_encoder for p in c.policies):
+        return []
+    epochs = {"epochs": c.encoder_epochs} if c.encoder_epochs else {}
+    return [
+        TrainEncoderConfig.from_preset(
+            c.task, c.profile, runs=c.runs, num_envs=c.train_envs, seed=c.seed, **epochs
         )
-        run_collection(
-            CollectConfig.from_preset(**common, envs=c.calibration_env_indices, num_failures=0)
+    ]
+
+
+def policy_trainings(c: DemoConfig) -> list[Any]:
+    from aed_models.train.policy import TrainPolicyConfig
+
+    epochs = {"epochs": c.policy_epochs} if c.policy_epochs else {}
+    configs = []
+    for policy in c.policies:
+        cfg = TrainPolicyConfig.from_preset(
+            c.task, policy, c.profile, runs=c.runs, num_envs=c.train_envs, seed=c.seed, **epochs
         )
+        collected = (c.num_demos, c.num_successes)
+        configs.append(dataclasses.replace(cfg, composition=at_most(cfg.composition, collected)))
+    return configs
 
-    def train_encoder(self) -> None:
-        from aed_models.policies import POLICIES
-        from aed_models.train.encoder import TrainEncoderConfig, train_encoder
 
-        c = self.cfg
-        if any(POLICIES.preset(p, c.profile).frozen_encoder for p in c.policies):
-            epochs = {"epochs": c.encoder_epochs} if c.encoder_epochs else {}
-            train_encoder(
-                TrainEncoderConfig.from_preset(
-                    c.task, c.profile, runs=c.runs, num_envs=c.train_envs, seed=c.seed, **epochs
-                )
-            )
+def detector_trainings(c: DemoConfig) -> list[Any]:
+    from aed_models.detectors import requires_policy
+    from aed_models.train.detector import TrainDetectorConfig
 
-    def train_policies(self) -> None:
-        from aed_models.train.policy import TrainPolicyConfig, train_policy
-
-        c = self.cfg
-        epochs = {"epochs": c.policy_epochs} if c.policy_epochs else {}
-        for policy in c.policies:
-            cfg = TrainPolicyConfig.from_preset(
-                c.task, policy, c.profile, runs=c.runs, num_envs=c.train_envs, seed=c.seed, **epochs
-            )
-            collected = (c.num_demos, c.num_successes)
-            train_policy(dataclasses.replace(cfg, composition=at_most(cfg.composition, collected)))
-
-    def train_detectors(self) -> None:
-        from aed_models.detectors import requires_policy
-        from aed_models.train.detector import TrainDetectorConfig, train_detector
-
-        c = self.cfg
-        epochs = {"epochs": c.detector_epochs} if c.detector_epochs else {}
-        for detector in c.detectors:
-            for policy in c.policies if requires_policy(detector) else (None,):
-                cfg = TrainDetectorConfig.from_preset(
-                    c.task,
-                    detector,
-                    c.profile,
-                    policy=policy,
-                    runs=c.runs,
-                    num_envs=c.train_envs,
-                    seed=c.seed,
-                    **epochs,
-                )
-                collected = (c.num_demos, c.num_successes, c.num_failures)
-                train_detector(
-                    dataclasses.replace(cfg, composition=at_most(cfg.composition, collected))
-                )
-
-    def collect_novel(self) -> None:
-        from aed_eval.collect import CollectConfig, run_collection
-
-        c = self.cfg
-        common = {
-            "task": c.task,
-            "split": "novel",
-            "profile": c.profile,
-            "runs": c.runs,
-            "num_envs": c.novel_envs,
-            "workers": c.workers,
-            "seed": c.seed,
-            "shard_size": 5,
-        }
-        run_collection(
-            CollectConfig.from_preset(
-                **common, num_demos=c.num_demos, num_successes=0, num_failures=0
-            )
-        )
-        if c.labelled:
-            run_collection(
-                CollectConfig.from_preset(
-                    **common,
-                    num_demos=0,
-                    num_successes=c.labelled,
-                    num_failures=c.labelled,
-                    out=self.layout.labelled(c.task, "novel"),
-                )
-            )
-
-    def roll_out(self) -> None:
-        from aed_eval.rollout import RolloutConfig, run_rollouts
-
-        c = self.cfg
-        common = {
-            "task": c.task,
-            "runs": c.runs,
-            "profile": c.profile,
-            "num_demos": c.num_demos,
-            "workers": c.workers,
-            "horizon": c.horizon,
-            "seed": c.seed,
-        }
-        for policy in c.policies:
-            run_rollouts(
-                RolloutConfig.from_preset(
-                    **common,
-                    policy=policy,
-                    split="novel",
-                    num_envs=c.novel_envs,
-                    num_episodes=c.rollouts,
-                )
-            )
-            run_rollouts(
-                RolloutConfig.from_preset(
-                    **common,
-                    policy=policy,
-                    split="base",
-                    envs=c.calibration_env_indices,
-                    num_episodes=c.calibration_rollouts,
-                )
-            )
-
-    def calibrate(self) -> None:
-        from aed_eval.calibrate import SOURCES, CalibrateConfig, calibrate_detectors
-
-        c = self.cfg
-        for policy in c.policies:
-            for source in SOURCES:
-                calibrate_detectors(
-                    CalibrateConfig(
-                        task=c.task,
-                        policy=policy,
-                        detectors=c.detectors,
-                        alphas=c.alphas,
-                        source=source,
-                        envs=c.calibration_env_indices,
-                        num_demos=c.num_demos,
-                        runs=c.runs,
-                    )
-                )
-
-    def evaluate(self) -> list[Path]:
-        from aed_eval.evaluate import EvaluateConfig, evaluate_policy
-
-        c = self.cfg
-        paths = []
-        for policy in c.policies:
-            cfg = EvaluateConfig(
-                task=c.task,
+    epochs = {"epochs": c.detector_epochs} if c.detector_epochs else {}
+    configs = []
+    for detector in c.detectors:
+        for policy in c.policies if requires_policy(detector) else (None,):
+            cfg = TrainDetectorConfig.from_preset(
+                c.task,
+                detector,
+                c.profile,
                 policy=policy,
-                detectors=c.detectors,
-                num_demos=c.num_demos,
                 runs=c.runs,
+                num_envs=c.train_envs,
                 seed=c.seed,
+                **epochs,
             )
-            evaluate_policy(cfg)
-            paths.append(Path(cfg.out) / "results.json")
-        return paths
+            collected = (c.num_demos, c.num_successes, c.num_failures)
+            configs.append(
+                dataclasses.replace(cfg, composition=at_most(cfg.composition, collected))
+            )
+    return configs
 
-    def report(self, results: list[Path]) -> Path:
-        from aed_eval.report import ReportConfig, make_report
 
-        return make_report(ReportConfig(results=tuple(results), out=self.layout.report()))
+def novel_collections(c: DemoConfig) -> list[Any]:
+    """The novel demonstrations, then the labelled expert episodes (successes and failures)."""
+    envs = {"num_envs": c.novel_envs}
+    configs = [
+        collection(c, "novel", num_demos=c.num_demos, num_successes=0, num_failures=0, **envs)
+    ]
+    if c.labelled:
+        out = RunLayout(c.runs).labelled(c.task, "novel")
+        labelled = {"num_successes": c.labelled, "num_failures": c.labelled}
+        configs.append(collection(c, "novel", num_demos=0, out=out, **labelled, **envs))
+    return configs
+
+
+def rollouts(c: DemoConfig) -> list[Any]:
+    """Each policy in the novel environments, then in the held-out calibration ones."""
+    from aed_eval.rollout import RolloutConfig
+
+    common = {
+        "task": c.task,
+        "runs": c.runs,
+        "profile": c.profile,
+        "num_demos": c.num_demos,
+        "workers": c.workers,
+        "horizon": c.horizon,
+        "seed": c.seed,
+    }
+    configs = []
+    for policy in c.policies:
+        configs.append(
+            RolloutConfig.from_preset(
+                **common,
+                policy=policy,
+                split="novel",
+                num_envs=c.novel_envs,
+                num_episodes=c.rollouts,
+            )
+        )
+        configs.append(
+            RolloutConfig.from_preset(
+                **common,
+                policy=policy,
+                split="base",
+                envs=c.calibration_env_indices,
+                num_episodes=c.calibration_rollouts,
+            )
+        )
+    return configs
+
+
+def calibrations(c: DemoConfig) -> list[Any]:
+    from aed_eval.calibrate import SOURCES, CalibrateConfig
+
+    return [
+        CalibrateConfig(
+            task=c.task,
+            policy=policy,
+            detectors=c.detectors,
+            alphas=c.alphas,
+            source=source,
+            envs=c.calibration_env_indices,
+            num_demos=c.num_demos,
+            runs=c.runs,
+        )
+        for policy in c.policies
+        for source in SOURCES
+    ]
+
+
+def evaluations(c: DemoConfig) -> list[Any]:
+    from aed_eval.evaluate import EvaluateConfig
+
+    labelled = RunLayout(c.runs).labelled(c.task, "novel") if c.labelled else None
+    return [
+        EvaluateConfig(
+            task=c.task,
+            policy=policy,
+            detectors=c.detectors,
+            num_demos=c.num_demos,
+            labelled=labelled,
+            runs=c.runs,
+            seed=c.seed,
+        )
+        for policy in c.policies
+    ]
+
+
+def plan_stages(c: DemoConfig) -> list[Stage]:
+    """Every stage's configs, built (so validated) before any work starts: a bad value is
+    refused at once, with nothing written, not after the first stages ran."""
+    from aed_eval.calibrate import calibrate_detectors
+    from aed_eval.collect import run_collection
+    from aed_eval.evaluate import evaluate_policy
+    from aed_eval.rollout import run_rollouts
+    from aed_models.train.detector import train_detector
+    from aed_models.train.encoder import train_encoder
+    from aed_models.train.policy import train_policy
+
+    stages = [
+        ("collect base split", run_collection, base_collections(c)),
+        ("train scene encoder", train_encoder, encoder_trainings(c)),
+        ("train policies", train_policy, policy_trainings(c)),
+        ("train detectors", train_detector, detector_trainings(c)),
+        ("collect novel split", run_collection, novel_collections(c)),
+        ("roll out policies", run_rollouts, rollouts(c)),
+        ("calibrate detectors", calibrate_detectors, calibrations(c)),
+        ("evaluate", evaluate_policy, evaluations(c)),
+    ]
+    return [Stage(name, [(fn, cfg) for cfg in configs]) for name, fn, configs in stages]
 
 
 def at_most(composition: tuple[int, ...], collected: tuple[int, ...]) -> tuple[int, ...]:
@@ -326,19 +332,26 @@ def at_most(composition: tuple[int, ...], collected: tuple[int, ...]) -> tuple[i
     return tuple(min(want, have) for want, have in zip(composition, collected, strict=True))
 
 
+def timed(times: dict[str, float], name: str, fn: Callable[[], Any]) -> Any:
+    """Run `fn`, logging the stage and storing its seconds in `times[name]`."""
+    logger.info("demo: %s", name)
+    start = time.perf_counter()
+    result = fn()
+    times[name] = round(time.perf_counter() - start, 1)
+    logger.info("demo: %s done in %.0f s", name, times[name])
+    return result
+
+
 def run_demo(cfg: DemoConfig) -> tuple[Path, dict[str, float]]:
-    """Every stage in order; returns the report's path and the stage times."""
-    stages = Stages(cfg)
-    stages.timed("collect base split", stages.collect_base)
-    stages.timed("train scene encoder", stages.train_encoder)
-    stages.timed("train policies", stages.train_policies)
-    stages.timed("train detectors", stages.train_detectors)
-    stages.timed("collect novel split", stages.collect_novel)
-    stages.timed("roll out policies", stages.roll_out)
-    stages.timed("calibrate detectors", stages.calibrate)
-    results = stages.timed("evaluate", stages.evaluate)
-    path = stages.timed("report", stages.report, results)
-    return path, stages.times
+    """Every stage in order (all planned first); returns the report's path and the stage times."""
+    from aed_eval.report import ReportConfig, make_report
+
+    stages, times = plan_stages(cfg), {}
+    for stage in stages:
+        timed(times, stage.name, lambda jobs=stage.jobs: [fn(job) for fn, job in jobs])
+    results = tuple(Path(job.out) / "results.json" for _, job in stages[-1].jobs)
+    report = ReportConfig(results=results, out=RunLayout(cfg.runs).report())
+    return timed(times, "report", lambda: make_report(report)), times
 
 
 def demo(cfg: Annotated[DemoConfig, tyro.conf.arg(name="")]) -> int:

@@ -32,6 +32,7 @@ from aed_eval.scoring import (
 )
 from aed_models.layout import RunLayout
 from aed_tasks import trajectory
+from aed_tasks.locks import locks_out_folder
 
 logger = logging.getLogger(__name__)
 
@@ -222,6 +223,7 @@ def score_all(
     return scores
 
 
+@locks_out_folder  # one evaluation per out folder (aed_tasks.locks)
 def evaluate_policy(cfg: EvaluateConfig) -> dict[str, Any]:
     """Score every rollout by every detector and compute the metrics (see the module doc)."""
     layout = RunLayout(cfg.runs)

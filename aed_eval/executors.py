@@ -160,11 +160,16 @@ def _init_worker(
     die_with_parent(parent)
     setup_logging(log_level)
     share_cores(threads)
-    _WORKER["runner"] = make_runner()
     _WORKER["ticks"] = ticks
+    try:
+        _WORKER["runner"] = make_runner()
+    except Exception as e:  # an initializer's error breaks the pool and is lost: keep it
+        _WORKER["error"] = e
 
 
 def _run_in_worker(job: Any) -> Any:
+    if "error" in _WORKER:  # the runner failed to start: the parent gets its error
+        raise _WORKER["error"]
     ticks = _WORKER["ticks"]
     return _WORKER["runner"].run(job, ticks.put)
 

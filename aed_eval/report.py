@@ -29,6 +29,7 @@ from aed_eval.evaluate import (
 )
 from aed_eval.scoring import PAPER_DETECTORS
 from aed_tasks import trajectory
+from aed_tasks.locks import locks_out_folder
 
 logger = logging.getLogger(__name__)
 
@@ -386,6 +387,7 @@ def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
     return written
 
 
+@locks_out_folder  # one report per out folder (aed_tasks.locks)
 def make_report(cfg: ReportConfig) -> Path:
     cases = [load_case(p) for p in cfg.paths]
     detectors = check_cases(cases)

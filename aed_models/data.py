@@ -107,41 +107,38 @@ CLUTTER = re.compile(r"distractor_\d+$")  # the tasks' unrelated clutter (not ta
 ROBOTS = ("panda",)
 
 
-def scene_state(group: Any) -> np.ndarray:
-    """(T + 1, D) float32: where things are at every frame of one stored episode.
-
-    The TCP position, the stage target (`stage_subgoals`), then, for every task object in the
-    recorded env states (every actor and articulation but the robot and the clutter, sorted by
-    name), its root position and, for an articulation, its joint positions. The encoder learns
-    these from the frame (`aed_models.encoder`); the policies act from RGB-D alone.
-    """
-    tcp = group["obs/extra/tcp_pose"][()][:, :3].astype(np.float32)
-    parts = [tcp, stage_subgoals(tcp, group["stage"][()])]
+def task_objects(group: Any) -> Iterator[tuple[str, str, int]]:
+    """(kind, name, joints) of every task object in a stored episode's env states: every actor
+    and articulation but the robot and the clutter, sorted by name (joints: 0 for an actor)."""
     states = group["env_states"]
     for kind in ("actors", "articulations"):
         for name in sorted(states.get(kind, {})):
             if name in ROBOTS or CLUTTER.match(name):
                 continue
-            state = states[kind][name][()].astype(np.float32)
-            parts.append(state[:, :3])
-            if kind == "articulations":
-                dof = (state.shape[1] - 13) // 2
-                parts.append(state[:, 13 : 13 + dof])
+            joints = (states[kind][name].shape[1] - 13) // 2 if kind == "articulations" else 0
+            yield kind, name, joints
+
+
+def scene_state(group: Any) -> np.ndarray:
+    """(T + 1, D) float32: where things are at every frame of one stored episode.
+
+    The TCP position, the stage target (`stage_subgoals`), then each task object's root position
+    and joint positions (`task_objects`). The encoder learns these from the frame
+    (`aed_models.encoder`); the policies act from RGB-D alone.
+    """
+    tcp = group["obs/extra/tcp_pose"][()][:, :3].astype(np.float32)
+    parts = [tcp, stage_subgoals(tcp, group["stage"][()])]
+    for kind, name, joints in task_objects(group):
+        state = group["env_states"][kind][name][()].astype(np.float32)
+        parts += [state[:, :3], state[:, 13 : 13 + joints]]
     return np.concatenate(parts, axis=1)
 
 
 def scene_state_names(group: Any) -> list[str]:
     """Names of `scene_state`'s columns (e.g. `button.x`, `button.q0`)."""
     names = [f"tcp.{a}" for a in "xyz"] + [f"subgoal.{a}" for a in "xyz"]
-    states = group["env_states"]
-    for kind in ("actors", "articulations"):
-        for name in sorted(states.get(kind, {})):
-            if name in ROBOTS or CLUTTER.match(name):
-                continue
-            names += [f"{name}.{a}" for a in "xyz"]
-            if kind == "articulations":
-                dof = (states[kind][name].shape[1] - 13) // 2
-                names += [f"{name}.q{i}" for i in range(dof)]
+    for _, name, joints in task_objects(group):
+        names += [f"{name}.{a}" for a in "xyz"] + [f"{name}.q{i}" for i in range(joints)]
     return names
 
 

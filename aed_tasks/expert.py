@@ -69,6 +69,7 @@ class ScriptedExpert:
             every intervened episode of one seed (see the module docstring).
         error_rng: the generator of values only an injected error needs (its own stream).
         speed: cruise speed in metres per control step (the episode's speed profile).
+        keep_observations: keep every step's observation (False when a recorder keeps them).
     """
 
     def __init__(
@@ -77,6 +78,7 @@ class ScriptedExpert:
         rng: np.random.Generator,
         speed: float,
         error_rng: np.random.Generator | None = None,
+        keep_observations: bool = True,
     ):
         from mani_skill.examples.motionplanning.panda.motionplanner import (
             PandaArmMotionPlanningSolver,
@@ -87,6 +89,7 @@ class ScriptedExpert:
         self.rng = rng
         self.error_rng = np.random.default_rng(0) if error_rng is None else error_rng
         self.speed = speed
+        self.keep_observations = keep_observations
         solver = PandaArmMotionPlanningSolver(
             env,
             debug=False,
@@ -137,7 +140,8 @@ class ScriptedExpert:
         self.success.append(bool(_to_numpy(info["success"]).reshape(-1)[0]))
         self.fail.append(bool(_to_numpy(info["fail"]).reshape(-1)[0]))
         self.stage.append(int(_to_numpy(info["stage"]).reshape(-1)[0]))
-        self.observations.append(obs)
+        if self.keep_observations:
+            self.observations.append(obs)
         self.truncated = bool(_to_numpy(truncated).reshape(-1)[0])
 
     def plan(self, target: np.ndarray) -> np.ndarray:
@@ -234,13 +238,15 @@ def solve(
     error: ErrorSpec | None = None,
     env_index: int | None = None,
     suboptimal: bool = False,
+    frames: bool = True,
 ) -> Episode:
     """Run the task's expert for one episode (optionally with an injected error).
 
     `env` is an AED env made with `gym.make` (any wrappers, e.g. `RecordEpisode`, see the
     same steps). The episode is reset with `seed` (and `env_index`, if given). With
     `suboptimal=True` the expert first fails in one of the task's recoverable ways, then
-    starts over from where it is and succeeds (the demonstration-quality experiment).
+    starts over from where it is and succeeds (the demonstration-quality experiment). With
+    `frames=False` the episode carries no RGB-D frames (a step recorder around `env` keeps them).
     """
     base = env.unwrapped
     if error is not None and error.kind not in base.error_kinds:
@@ -259,7 +265,9 @@ def solve(
     error_rng = np.random.default_rng(
         [seed, 1 + (base.error_kinds.index(error.kind) if error else 0)]
     )
-    expert = ScriptedExpert(env, rng, expert_speed(rng, base.demonstrator), error_rng)
+    expert = ScriptedExpert(
+        env, rng, expert_speed(rng, base.demonstrator), error_rng, keep_observations=frames
+    )
     first_attempt = None
     try:
         if suboptimal:
@@ -314,7 +322,7 @@ def _episode(
         labels[expert.onset :] = 1
     rgb: dict[str, np.ndarray] = {}
     depth: dict[str, np.ndarray] = {}
-    if isinstance(first_obs, dict) and "sensor_data" in first_obs:
+    if expert.keep_observations and isinstance(first_obs, dict) and "sensor_data" in first_obs:
         frames = [first_obs, *expert.observations]
         for camera, data in first_obs["sensor_data"].items():
             if "rgb" in data:

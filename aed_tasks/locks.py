@@ -17,6 +17,7 @@ import fcntl
 import functools
 import logging
 import os
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -51,11 +52,15 @@ class FolderLock:
         self.folder = Path(folder)
         self.path = self.folder / LOCK_NAME
         self._fd: int | None = None
+        self._made: list[Path] = []
 
     def acquire(self) -> FolderLock:
         """Take the lock, or raise `FolderLockedError` naming the live holder's pid."""
         if self._fd is not None:
             raise RuntimeError(f"{self.folder}: this lock is already held")
+        if self.folder.exists() and not self.folder.is_dir():
+            raise ValueError(f"{self.folder}: a file, not a folder")
+        self._made = [p for p in (self.folder, *self.folder.parents) if not p.exists()]
         self.folder.mkdir(parents=True, exist_ok=True)
         for _ in range(20):  # a holder may remove the file between our open and our lock
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
@@ -103,7 +108,8 @@ class FolderLock:
         self._fd = fd
 
     def release(self) -> None:
-        """Remove the lock file, then unlock (a waiter that opened it sees it was replaced)."""
+        """Remove the lock file, then unlock (a waiter that opened it sees it was replaced), then
+        the folders `acquire` made if they stayed empty: a refused run leaves nothing behind."""
         if self._fd is None:
             return
         fd, self._fd = self._fd, None
@@ -112,6 +118,11 @@ class FolderLock:
                 self.path.unlink()
         finally:
             os.close(fd)  # closing the last descriptor releases the flock
+        for folder in self._made:  # deepest first
+            try:
+                folder.rmdir()
+            except OSError:  # not empty (the run wrote there), or already gone
+                break
 
     def __enter__(self) -> FolderLock:
         return self.acquire()
@@ -121,10 +132,25 @@ class FolderLock:
 
 
 @contextmanager
-def folder_lock(folder: Path | str) -> Iterator[FolderLock]:
-    """Hold `folder`'s writer lock for the block (see `FolderLock`)."""
-    with FolderLock(folder) as lock:
+def folder_lock(folder: Path | str, wait: bool = False) -> Iterator[FolderLock]:
+    """Hold `folder`'s writer lock for the block (see `FolderLock`). `wait`: a held lock is
+    waited for (a cache another process is filling) instead of refused."""
+    lock, told = FolderLock(folder), False
+    while True:
+        try:
+            lock.acquire()
+            break
+        except FolderLockedError as e:
+            if not wait:
+                raise
+            if not told:
+                logger.info("%s (waiting for it)", e)
+                told = True
+            time.sleep(0.2)
+    try:
         yield lock
+    finally:
+        lock.release()
 
 
 def locks_out_folder(fn: Callable[..., R]) -> Callable[..., R]:

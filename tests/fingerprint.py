@@ -159,31 +159,15 @@ def counts(cfg: Any, keys: tuple[str, ...], size: int) -> dict[str, Any]:
 
 def demo_stages(profile: str) -> dict[str, Any]:
     """The collection, training and rollout configs `aed demo` builds (nothing is run)."""
-    import aed_eval.collect
-    import aed_eval.rollout
-    import aed_models.train.detector
-    import aed_models.train.policy
-    from aed_eval.demo import DemoConfig, Stages
+    from aed_eval.demo import DemoConfig, plan_stages
 
-    seen: dict[str, list] = {"collect": [], "policy": [], "detector": [], "rollout": []}
-    patches = [
-        (aed_eval.collect, "run_collection", "collect"),
-        (aed_models.train.policy, "train_policy", "policy"),
-        (aed_models.train.detector, "train_detector", "detector"),
-        (aed_eval.rollout, "run_rollouts", "rollout"),
-    ]
-    saved = [(module, attr, getattr(module, attr)) for module, attr, _ in patches]
-    try:
-        for module, attr, key in patches:
-            setattr(module, attr, lambda cfg, *a, _key=key: seen[_key].append(cfg))
-        stages = Stages(DemoConfig.from_preset(task="PressButton", profile=DEMO_PRESETS[profile]))
-        stages.collect_base()
-        stages.train_policies()
-        stages.train_detectors()
-        stages.collect_novel()
-    finally:
-        for module, attr, fn in saved:
-            setattr(module, attr, fn)
+    planned = plan_stages(DemoConfig.from_preset(task="PressButton", profile=DEMO_PRESETS[profile]))
+    jobs = {stage.name: [cfg for _, cfg in stage.jobs] for stage in planned}
+    seen = {
+        "collect": jobs["collect base split"] + jobs["collect novel split"],
+        "policy": jobs["train policies"],
+        "detector": jobs["train detectors"],
+    }
     keys = ("envs", "num_envs", "num_demos", "num_successes", "num_failures", "out", "shard_size")
     return {
         "collect": [counts(c, keys, size=-1) for c in seen["collect"]],

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import importlib.util
+import logging
 import sys
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 
 def load_script(name: str) -> ModuleType:
@@ -36,3 +38,17 @@ def write_synthetic_collection(
                 writer.add(*episode)
             writer.commit(info, {"env_index": env_index, "group": role})
     return root
+
+
+def aed(argv: list[str], caplog: Any, capsys: Any) -> tuple[int, list[str], str]:
+    """`aed <argv>` run in this process through the console script's `main`: its exit status,
+    the error lines it logged and its stdout. A parse, not an interpreter start (see
+    tests/test_cli.py and the kill tests for the console script itself)."""
+    from aed_eval import cli
+
+    caplog.clear()
+    capsys.readouterr()
+    with caplog.at_level(logging.ERROR, logger="aed"):
+        status = cli.main(argv)
+    errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+    return status, errors, capsys.readouterr().out

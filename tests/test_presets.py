@@ -4,38 +4,30 @@ every command's `--help` shows the preset's numbers."""
 from __future__ import annotations
 
 import dataclasses
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from aed_eval import cli, train
-from aed_eval.demo import DemoConfig, Stages
+from aed_eval.demo import DemoConfig, plan_stages
 from aed_eval.presets import PROTOCOLS
 from aed_models.detectors import DETECTORS, requires_policy
 from aed_models.policies import POLICIES
 from aed_models.recipe import PROFILES, DetectorRecipe, PolicyRecipe
 from aed_models.train.detector import TrainDetectorConfig
 from aed_models.train.policy import TrainPolicyConfig
+from tests.helpers import aed
 
-AED = str(Path(sys.executable).with_name("aed"))
 TASK = "PressButton"
 
 
-def demo_training_configs(profile: str, monkeypatch) -> tuple[list, list]:
-    """The policy and detector training configs `aed demo --profile <profile>` builds (nothing
-    runs)."""
-    import aed_models.train.detector
-    import aed_models.train.policy
-
-    policies, detectors = [], []
-    monkeypatch.setattr(aed_models.train.policy, "train_policy", policies.append)
-    monkeypatch.setattr(aed_models.train.detector, "train_detector", detectors.append)
-    stages = Stages(DemoConfig.from_preset(task=TASK, profile=profile))
-    stages.train_policies()
-    stages.train_detectors()
-    return policies, detectors
+def demo_training_configs(profile: str) -> tuple[list, list]:
+    """The policy and detector training configs `aed demo --profile <profile>` plans."""
+    jobs = {
+        s.name: [cfg for _, cfg in s.jobs]
+        for s in plan_stages(DemoConfig.from_preset(TASK, profile))
+    }
+    return jobs["train policies"], jobs["train detectors"]
 
 
 def parsed(command: str, *args: str):
@@ -44,8 +36,8 @@ def parsed(command: str, *args: str):
 
 
 @pytest.mark.parametrize("profile", PROFILES)
-def test_the_demo_trains_the_named_preset(profile, monkeypatch):
-    policies, detectors = demo_training_configs(profile, monkeypatch)
+def test_the_demo_trains_the_named_preset(profile):
+    policies, detectors = demo_training_configs(profile)
     assert [c.policy for c in policies] == list(PROTOCOLS[profile].policies)
     for cfg in policies:
         command = parsed(
@@ -112,10 +104,11 @@ def test_flags_override_the_preset_and_the_preset_follows_its_choosers():
 @pytest.mark.parametrize(
     "command", ["train-policy", "train-detector", "collect", "rollout", "demo"]
 )
-def test_help_shows_the_presets_numbers(command):
-    text = subprocess.run(
-        [AED, command, "--help"], capture_output=True, text=True, timeout=120, check=True
-    ).stdout
+def test_help_shows_the_presets_numbers(command, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        cli.main([command, "--help"])
+    assert exit_.value.code == 0
+    text = capsys.readouterr().out
     flat = " ".join(text.replace("│", " ").split())
     assert flat.count("(default: None)") == flat.count("--ray-address"), (
         flat
@@ -134,15 +127,13 @@ def test_help_shows_the_presets_numbers(command):
         assert piece in flat, (piece, flat)
 
 
-def test_bad_profile_or_model_is_one_line_and_exit_2():
-    for args in (
-        ["train-policy", "--profile", "huge"],
-        ["train-detector", "--detector", "nope"],
-        ["rollout", "--policy", "bc"],
-        ["collect", "--task", "Juggle"],
+def test_bad_profile_or_model_is_one_line_and_exit_2(caplog, capsys):
+    for args, named in (
+        (["train-policy", "--profile", "huge"], "huge"),
+        (["train-detector", "--detector", "nope"], "nope"),
+        (["rollout", "--policy", "bc"], "unknown policy 'bc'"),
+        (["collect", "--task", "Juggle"], "Juggle"),
     ):
-        result = subprocess.run([AED, *args], capture_output=True, text=True, timeout=120)
-        assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, (
-            args,
-            result.stderr,
-        )
+        status, errors, _ = aed(args, caplog, capsys)
+        assert status == 2 and len(errors) == 1 and named in errors[0], (args, errors)
+        assert "\n" not in errors[0]

@@ -5,8 +5,6 @@ no model scored on an environment it trained on."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -32,8 +30,9 @@ from aed_models.layout import RunLayout
 from aed_models.nn import VisualHeadConfig
 from aed_models.policies import POLICIES, make_policy, save_policy
 from aed_tasks import solve
+from aed_tasks.locks import FolderLockedError, folder_lock
+from tests.helpers import aed
 
-AED = str(Path(sys.executable).with_name("aed"))
 TASK = "PressButton"
 HORIZON = 110  # the clean expert presses within ~60 steps and rests by ~105
 
@@ -251,41 +250,37 @@ def test_calibration_uses_the_policys_successes_in_held_out_environments(setting
     assert not body["diagnostic"]
 
 
+def test_calibration_refuses_a_detector_folder_another_run_writes(setting):
+    folder = setting["layout"].detector(TASK, "lstm_ed", "naive_dc").parent
+    before = sorted(p.name for p in folder.iterdir())
+    with folder_lock(folder):  # e.g. the detector being trained again
+        with pytest.raises(FolderLockedError, match="another run"):
+            calibrate_detectors(
+                CalibrateConfig(
+                    task=TASK, policy="naive_dc", detectors=("lstm_ed",), runs=setting["runs"]
+                )
+            )
+        assert sorted(p.name for p in folder.iterdir()) == sorted([*before, ".aed.lock"])
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("command", ["evaluate", "calibrate"])
-def test_scoring_a_model_on_its_training_environments_is_refused(setting, base_rollouts, command):
-    args = [
-        AED,
-        command,
-        "--task",
-        TASK,
-        "--policy",
-        "naive_dc",
-        "--detectors",
-        "lstm_ed",
-        "--num-demos",
-        "1",
-        "--runs",
-        str(setting["runs"]),
-        "--no-progress",
-    ]
+def test_scoring_a_model_on_its_training_environments_is_refused(
+    setting, base_rollouts, command, caplog, capsys
+):
+    args = [command, "--task", TASK, "--policy", "naive_dc", "--detectors", "lstm_ed"]
+    args += ["--num-demos", "1", "--runs", str(setting["runs"]), "--no-progress"]
     args += (
         ["--split", "base", "--out", str(setting["runs"] / "eval-base")]
         if command == "evaluate"
         else ["--envs", "0", "1"]
     )
-    refused = subprocess.run(args, capture_output=True, text=True, timeout=300)
-    assert refused.returncode == 2, refused.stderr
-    (line,) = refused.stderr.strip().splitlines()
-    assert (
-        "policy naive_dc trained on base environments [0]" in line
-        and "--allow-trained-envs" in line
-    )
-    allowed = subprocess.run(
-        [*args, "--allow-trained-envs"], capture_output=True, text=True, timeout=300
-    )
-    assert allowed.returncode == 0, allowed.stderr
-    assert "DIAGNOSTIC" in allowed.stdout
+    status, errors, _ = aed(args, caplog, capsys)
+    assert status == 2 and len(errors) == 1, errors
+    assert "policy naive_dc trained on base environments [0]" in errors[0]
+    assert "--allow-trained-envs" in errors[0] and "\n" not in errors[0]
+    status, errors, out = aed([*args, "--allow-trained-envs"], caplog, capsys)
+    assert status == 0 and not errors and "DIAGNOSTIC" in out, errors
     if command == "evaluate":
         results = json.loads((setting["runs"] / "eval-base" / "results.json").read_text())
         assert results["diagnostic"] and results["trained_env_overlap"]["policy naive_dc"] == [0]

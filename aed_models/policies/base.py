@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from aed_models.data import PROPRIO_DIM, proprio_from_obs, to_frames
+from aed_models.data import PROPRIO_DIM, proprio_from_obs, subsample, to_frames
 from aed_models.nn.batch import check_sequences
 from aed_models.nn.encoders import build_visual_head, encode_frames
 from aed_models.nn.mlp import mlp
@@ -65,16 +65,17 @@ class Actor(nn.Module):
 def thin_sequences(
     frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None, limit: int
 ):
-    """At most `limit` frames (or features) of each padded sequence, evenly spread, its first
-    and last kept."""
-    lengths = mask.sum(1)
-    if limit == 0 or int(lengths.max()) <= limit:
+    """At most `limit` frames (or features) of each padded sequence, chosen by
+    `aed_models.data.subsample` (evenly spread, first and last kept)."""
+    lengths = mask.sum(1).tolist()
+    if limit == 0 or max(lengths) <= limit:
         return frames, mask, proprio
-    keep = lengths.clamp(max=limit)
-    j = torch.arange(limit, device=mask.device)
-    new_mask = j[None] < keep[:, None]
-    idx = torch.round(j[None] * (lengths - 1)[:, None] / (keep - 1).clamp_min(1)[:, None]).long()
-    idx = torch.where(new_mask, idx, 0)
+    idx = torch.zeros(len(lengths), limit, dtype=torch.long, device=mask.device)
+    new_mask = torch.zeros(len(lengths), limit, dtype=torch.bool, device=mask.device)
+    for row, length in enumerate(lengths):
+        kept = torch.from_numpy(subsample(np.arange(length), limit))
+        idx[row, : len(kept)] = kept
+        new_mask[row, : len(kept)] = True
     rows = torch.arange(len(mask), device=mask.device)[:, None]
     proprio = None if proprio is None else proprio[rows, idx] * new_mask[..., None]
     keep_mask = new_mask.view(*new_mask.shape, *(1,) * (frames.dim() - 2))

@@ -1,27 +1,20 @@
 """Train an error detector on base-split rollouts (paper, appendix "Error Detector Details").
 
 Read top to bottom: config -> data (frames, or cached policy features) -> model -> (resume)
--> epochs -> final checkpoint.
+-> epochs -> final checkpoint (`aed_models.train.common`: `last.pt` every epoch, resume).
 
-- RMSprop, lr 1e-4, L2 weight decay 1e-2 (as the policies).
 - An epoch walks every base environment once (shuffled); an iteration draws from one
-  environment the recipe's demonstrations + agent successes + agent failures
-  (`DetectorConfig.recipe`; the paper's 5 + 10 + 10), successes in the failures' place for
-  the detectors trained on successes only (SVDDED, RND-OE: 5 + 20). Agent rollouts are
-  augmented (keep / drop / swap / copy) unless `augment=False`.
-- Policy-dependent detectors (PrObe, RND-OE) never see images: the frozen policy's features of
-  every base rollout are computed once into `runs/<task>/features/<policy sha256[:16]>/`
-  (`aed_models.train.feature_cache`) and the iterations read them from there.
-- After every epoch `<out>/last.pt` holds model, optimizer, RNG state, epoch and log (a killed
-  run resumes where it stopped); `<out>/train_log.json` the per-epoch losses. The result is
-  `<out>/detector.pt`, whose `extra` records the task, the profile and, for policy-dependent
-  detectors, the policy's name and checkpoint sha256.
+  environment the recipe's demonstrations + agent successes + agent failures (successes only
+  for SVDDED and RND-OE), the rollouts augmented (keep / drop / swap / copy) unless told not.
+- Policy-dependent detectors (PrObe, RND-OE) never see images: they read the frozen policy's
+  features, computed once per policy checkpoint (`aed_models.train.feature_cache`).
+- `<out>/detector.pt` records the task, the profile and, for policy-dependent detectors, the
+  policy's name and checkpoint sha256.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import time
 from collections import defaultdict
@@ -34,21 +27,22 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from aed_models.augment import RolloutAugment
-from aed_models.checkpoint import file_sha256, load_checkpoint, save_checkpoint
+from aed_models.checkpoint import Checkpoint, file_sha256
 from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampler, load_episodes
 from aed_models.detectors import DETECTORS, FAMILY, make_detector, requires_policy
 from aed_models.detectors.base import to_device
 from aed_models.layout import RunLayout
 from aed_models.recipe import DetectorRecipe, Profile, check_profile
-from aed_models.train.feature_cache import FeatureCache, FeatureIterations
-from aed_models.train.policy import (
-    check_same_training,
+from aed_models.train.common import (
+    TrainingFolder,
     check_task,
+    config_record,
     data_key,
     seed_everything,
     select_environments,
     trained_on,
 )
+from aed_models.train.feature_cache import FeatureCache, FeatureIterations
 from aed_tasks.locks import locks_out_folder
 
 logger = logging.getLogger(__name__)
@@ -212,9 +206,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
     `detector_cfg` replaces the profile's detector config (tests use tiny ones); a
     policy-dependent detector's feature sizes are always taken from the policy.
     """
-    out: Path = cfg.out
-    out.mkdir(parents=True, exist_ok=True)
-    last_path, final_path, log_path = out / "last.pt", out / "detector.pt", out / "train_log.json"
+    cfg.out.mkdir(parents=True, exist_ok=True)
     seed_everything(cfg.seed)
     device = torch.device(cfg.device)
     model_type = DETECTORS.model_type(cfg.detector)
@@ -249,43 +241,34 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
         lr=cfg.lr,
         weight_decay=cfg.weight_decay,
     )
-    train_config = {
-        k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()
-    }
-    provenance = {
-        "task": cfg.task,
-        "profile": cfg.profile,
-        "policy_name": policy_name,
-        "policy_sha256": policy_sha,
-        "data_key": data_key(episodes),
-        **trained_on(episodes),
-    }
+    folder = TrainingFolder(
+        cfg.out,
+        "detector.pt",
+        FAMILY,
+        cfg.detector,
+        detector.config.to_dict(),
+        provenance={
+            "task": cfg.task,
+            "profile": cfg.profile,
+            "policy_name": policy_name,
+            "policy_sha256": policy_sha,
+            "train_config": config_record(cfg),
+            "data_key": data_key(episodes),
+            **trained_on(episodes),
+        },
+    )
 
-    # resume
-    start_epoch, log = 0, []
-    if cfg.resume and last_path.exists():
-        ckpt = load_checkpoint(last_path, family=FAMILY, name=cfg.detector)
-        check_same_training(last_path, ckpt.extra, train_config, provenance["data_key"])
+    def same(ckpt: Checkpoint) -> str | None:
         if ckpt.extra.get("policy_sha256") != policy_sha:
-            raise ValueError(
-                f"{last_path}: trained on policy {ckpt.extra.get('policy_sha256')}, "
-                f"not {policy_sha}; use another out folder or resume=False"
-            )
-        if (
-            DETECTORS.config_from_dict(cfg.detector, ckpt.config) != detector.config
-        ):  # fields added since: their defaults
-            raise ValueError(
-                f"{last_path}: trained with another {cfg.detector} config ({ckpt.config}); "
-                "pass --no-resume or another --out"
-            )
-        detector.load_state_dict(ckpt.state_dict)
-        optimizer.load_state_dict(ckpt.extra["optimizer"])
-        torch.set_rng_state(ckpt.extra["torch_rng"])
-        start_epoch, log = ckpt.extra["epoch"], ckpt.extra["log"]
-        logger.info("resumed from %s after epoch %d", last_path, start_epoch)
-        if start_epoch >= cfg.epochs and final_path.exists():
-            logger.info("%s: already trained for %d epochs", final_path, start_epoch)
-            return final_path  # untouched: its sha256 is what rollouts and detectors are tied to
+            return f"trained on policy {ckpt.extra.get('policy_sha256')}, not {policy_sha}"
+        if DETECTORS.config_from_dict(cfg.detector, ckpt.config) != detector.config:
+            return f"trained with another {cfg.detector} config ({ckpt.config})"
+        return None  # (fields added since take their defaults)
+
+    resumed = folder.resume(detector, optimizer, same) if cfg.resume else None
+    start_epoch, log = resumed or (0, [])
+    if folder.finished(start_epoch, cfg.epochs):
+        return folder.final
 
     for epoch in range(start_epoch, cfg.epochs):
         detector.train()
@@ -323,30 +306,6 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
         }
         log.append(entry)
         logger.info("epoch %d/%d: %s", epoch + 1, cfg.epochs, entry)
-        save_checkpoint(
-            last_path,
-            family=FAMILY,
-            name=cfg.detector,
-            config=detector.config.to_dict(),
-            state_dict=detector.state_dict(),
-            extra={
-                **provenance,
-                "epoch": epoch + 1,
-                "optimizer": optimizer.state_dict(),
-                "torch_rng": torch.get_rng_state(),
-                "log": log,
-                "train_config": train_config,
-            },
-        )
-        log_path.write_text(json.dumps(log, indent=1))
+        folder.save_epoch(detector, optimizer, epoch + 1, log)
 
-    sha = save_checkpoint(
-        final_path,
-        family=FAMILY,
-        name=cfg.detector,
-        config=detector.config.to_dict(),
-        state_dict=detector.state_dict(),
-        extra={**provenance, "epoch": cfg.epochs, "log": log, "train_config": train_config},
-    )
-    logger.info("wrote %s (sha256 %s)", final_path, sha[:12])
-    return final_path
+    return folder.save_final(detector, cfg.epochs, log)

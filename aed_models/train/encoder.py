@@ -13,7 +13,6 @@ at the end, `<out>/train_log.json` the per-epoch losses.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import time
 from collections.abc import Sequence
@@ -27,21 +26,21 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from aed_models.checkpoint import load_checkpoint, save_checkpoint
 from aed_models.data import EpisodeReader, load_episodes, scene_state, scene_state_names
 from aed_models.encoder import FAMILY, NAME, EncoderConfig, EncoderRecipe
 from aed_models.encoder.modeling_encoder import SceneEncoder
 from aed_models.layout import RunLayout
 from aed_models.recipe import Profile, check_profile
-from aed_models.train.policy import (
-    check_same_training,
+from aed_models.train.common import (
+    TrainingFolder,
     check_task,
+    config_record,
     data_key,
-    random_shift,
     seed_everything,
     select_environments,
     trained_on,
 )
+from aed_models.train.policy import random_shift
 from aed_tasks import trajectory
 from aed_tasks.locks import locks_out_folder
 
@@ -158,9 +157,7 @@ def train_encoder(cfg: TrainEncoderConfig, encoder_cfg: EncoderConfig | None = N
     """Train, checkpointing every epoch; returns the final checkpoint `<out>/encoder.pt`.
 
     `encoder_cfg` replaces the profile's encoder config (tests use tiny ones)."""
-    out: Path = cfg.out
-    out.mkdir(parents=True, exist_ok=True)
-    last_path, final_path, log_path = out / "last.pt", out / "encoder.pt", out / "train_log.json"
+    cfg.out.mkdir(parents=True, exist_ok=True)
     seed_everything(cfg.seed)
 
     # data
@@ -178,28 +175,24 @@ def train_encoder(cfg: TrainEncoderConfig, encoder_cfg: EncoderConfig | None = N
     )
     encoder = SceneEncoder(config)
     optimizer = torch.optim.Adam(encoder.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    train_config = {
-        k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()
-    }
-    provenance = {
-        "train_config": train_config,
-        "data_key": data_key(episodes),
-        **trained_on(episodes),
-    }
-
-    start_epoch, log = 0, []
-    if cfg.resume and last_path.exists():
-        ckpt = load_checkpoint(last_path, family=FAMILY, name=NAME)
-        check_same_training(last_path, ckpt.extra, train_config, provenance["data_key"])
-        encoder.load_state_dict(ckpt.state_dict)
-        optimizer.load_state_dict(ckpt.extra["optimizer"])
-        torch.set_rng_state(ckpt.extra["torch_rng"])
-        start_epoch, log = ckpt.extra["epoch"], ckpt.extra["log"]
-        logger.info("resumed from %s after epoch %d", last_path, start_epoch)
-        if start_epoch >= cfg.epochs and final_path.exists():
-            return final_path
-    else:
+    folder = TrainingFolder(
+        cfg.out,
+        "encoder.pt",
+        FAMILY,
+        NAME,
+        config.to_dict(),
+        provenance={
+            "train_config": config_record(cfg),
+            "data_key": data_key(episodes),
+            **trained_on(episodes),
+        },
+    )
+    resumed = folder.resume(encoder, optimizer) if cfg.resume else None
+    if resumed is None:
         encoder.set_state_stats(torch.from_numpy(np.concatenate(data.states)))
+    start_epoch, log = resumed or (0, [])
+    if folder.finished(start_epoch, cfg.epochs):
+        return folder.final
 
     for epoch in range(start_epoch, cfg.epochs):
         encoder.train()
@@ -230,33 +223,9 @@ def train_encoder(cfg: TrainEncoderConfig, encoder_cfg: EncoderConfig | None = N
         }
         log.append(entry)
         logger.info("epoch %d/%d: %s", epoch + 1, cfg.epochs, entry)
-        extra = {
-            "epoch": epoch + 1,
-            "optimizer": optimizer.state_dict(),
-            "torch_rng": torch.get_rng_state(),
-            "log": log,
-            **provenance,
-        }
-        save_checkpoint(
-            last_path,
-            family=FAMILY,
-            name=NAME,
-            config=config.to_dict(),
-            state_dict=encoder.state_dict(),
-            extra=extra,
-        )
-        log_path.write_text(json.dumps(log, indent=1))
+        folder.save_epoch(encoder, optimizer, epoch + 1, log)
 
-    sha = save_checkpoint(
-        final_path,
-        family=FAMILY,
-        name=NAME,
-        config=config.to_dict(),
-        state_dict=encoder.state_dict(),
-        extra={"epoch": cfg.epochs, "log": log, **provenance},
-    )
-    logger.info("wrote %s (sha256 %s)", final_path, sha[:12])
-    return final_path
+    return folder.save_final(encoder, cfg.epochs, log)
 
 
 @torch.no_grad()

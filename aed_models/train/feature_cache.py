@@ -1,38 +1,23 @@
 """The frozen policy's per-frame features of stored episodes, computed once and kept on disk.
 
-PrObe and RND-OE train on the policy's history features f_h and task embedding f_zeta, not
-on images. Encoding every frame each epoch would cost what the policy's training costs, so
-the features of every base agent rollout are computed once per policy checkpoint:
+PrObe and RND-OE train on the policy's history features f_h and task embedding f_zeta, not on
+images, so the features of every base agent rollout are computed once per key:
 
     <root>/<policy sha256[:16]>/seed<seed>-demos<num_demos>/<shard stem>.npz
 
-one file per episode shard, written atomically, holding per episode (`traj_<i>`) history
-(T+1, Dh), task (T+1, Dz) and labels (T+1,), all float32, plus a json `meta` entry: the
-policy's full sha256, the seed and number of demonstrations, the shard's size and mtime, each
-episode's frame count, and which demonstrations conditioned the policy. The folder is keyed by
-everything the features depend on (the policy checkpoint, the demonstrations' draw: seed and
-count), so trainings with another seed neither share nor overwrite each other's features. A
-file whose meta does not match its key (another policy, seed or count, a rewritten shard,
-missing episodes, wrong shapes) is stale; one that does not load is corrupt: `build`
-recomputes both, `load` refuses them. `build` holds the folder's writer lock
-(`aed_tasks.locks`) while it writes.
-
-Which demonstrations: the policy's features depend on the demonstrations it is given. Each
-environment gets one fixed draw of `num_demos` optimal demonstrations (seeded by the cache
-seed and the environment index), used for every rollout of that environment.
-
-Augmentation then acts on the cached sequences with the same keep / drop / swap / copy
-indices as on frames (`FeatureIterations`, `RolloutAugment.indices`). For temporal policies
-(DCT, SCAN) this permutes already-computed history features rather than recomputing the
-history over the permuted frames: an approximation that keeps training free of image work.
+one file per shard, written atomically: per episode history (T+1, Dh), task (T+1, Dz) and
+labels (T+1,), and a `meta` naming everything they depend on (the policy, the demonstrations'
+draw, the shard's size and mtime, which demonstrations conditioned the policy: one fixed draw
+per environment). A file that does not match is stale, one that does not load corrupt: `build`
+recomputes both under the folder's lock (a second builder waits), `load` refuses them.
+Augmentation then permutes the cached sequences (`FeatureIterations`): for DCT and SCAN an
+approximation of re-running the history over permuted frames, with no image work.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import os
-import tempfile
 import zipfile
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -210,7 +195,7 @@ class FeatureCache:
         not cached, stale or corrupt. Returns the number of shards written.
 
         `num_demos` and `seed`, when given, re-key the cache (its `dir` follows). The folder is
-        locked while it is written: another process building the same key is refused.
+        locked while it is written: another process building the same key waits, then reads it.
         """
         self._set_key(
             self.seed if seed is None else seed, self.num_demos if num_demos is None else num_demos
@@ -219,7 +204,7 @@ class FeatureCache:
         todo = self._todo(_by_shard(rollouts), quiet=True)
         if not todo:
             return 0
-        with folder_lock(self.dir):  # checked again: another process may have written them
+        with folder_lock(self.dir, wait=True):  # checked again: another process may have written
             return self._write(self._todo(todo, quiet=False), episodes, policy, camera, progress)
 
     def _todo(
@@ -286,7 +271,7 @@ class FeatureCache:
                     "num_demos": num_demos,
                     "seed": seed,
                 }
-                _write_npz(self.path_for(shard), arrays, meta)
+                trajectory.write_npz_atomic(self.path_for(shard), arrays, meta)
                 self._shards.pop(shard, None)
         finally:
             reader.close()
@@ -317,20 +302,6 @@ def _by_shard(refs: Sequence[trajectory.EpisodeRef]) -> dict[Path, list[trajecto
     for ref in refs:
         out.setdefault(Path(ref.path), []).append(ref)
     return out
-
-
-def _write_npz(path: Path, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-    """np.savez to a temporary file in the same folder, fsync, then rename over `path`."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class FeatureIterations(Dataset):

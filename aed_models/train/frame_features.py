@@ -6,8 +6,10 @@ would encode the same frames again. They are encoded once per (encoder, collecti
     <root>/<encoder sha256[:16]>/<collection key>/<shard stem>.npz
 
 one file per episode shard (`traj_<i>`: (T + 1, D) float32, and `meta`: the encoder's sha256,
-the shard's size and mtime), written atomically. A file whose meta no longer matches is
-recomputed; the collection key is a hash of the collection folder's absolute path.
+the shard's size and mtime), written atomically; episodes missing from a file are added to it.
+A file whose meta no longer matches is recomputed; the collection key is a hash of the
+collection folder's absolute path. One process encodes into a folder at a time (its lock); a
+second waits, then reads what the first wrote.
 """
 
 from __future__ import annotations
@@ -15,8 +17,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
-import tempfile
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from aed_models.data import EpisodeReader
 from aed_tasks import trajectory
+from aed_tasks.locks import folder_lock
 
 logger = logging.getLogger(__name__)
 
@@ -39,30 +40,18 @@ def shard_meta(h5_path: Path, encoder_sha: str) -> dict:
     return {"encoder": encoder_sha, "size": stat.st_size, "mtime_ns": stat.st_mtime_ns}
 
 
-def read_cached(path: Path, meta: dict, trajs: Sequence[str]) -> dict[str, np.ndarray] | None:
-    """The cached features of `trajs`, or None when the file is missing, stale or unreadable."""
+def read_cached(path: Path, meta: dict) -> dict[str, np.ndarray]:
+    """Every episode's features cached in `path` ({} when missing, stale or unreadable)."""
     if not path.is_file():
-        return None
+        return {}
     try:
         with np.load(path) as npz:
             if json.loads(str(npz["meta"])) != meta:
-                return None
-            return {traj: npz[traj] for traj in trajs}
+                return {}
+            return {key: npz[key] for key in npz.files if key != "meta"}
     except (OSError, ValueError, KeyError) as e:
         logger.warning("%s: unreadable feature cache (%s), recomputing", path, e)
-        return None
-
-
-def write_cached(path: Path, meta: dict, features: dict[str, np.ndarray]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, meta=np.array(json.dumps(meta)), **features)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        return {}
 
 
 @torch.no_grad()
@@ -94,17 +83,31 @@ def frame_features(
     by_shard: dict[Path, list[trajectory.EpisodeRef]] = defaultdict(list)
     for ref in episodes:
         by_shard[Path(ref.path)].append(ref)
-    reader, features, encoded = EpisodeReader(), {}, 0
-    for h5_path, refs in tqdm(sorted(by_shard.items()), desc="features", disable=not progress):
-        path = folder / f"{h5_path.stem}.npz"
-        meta = shard_meta(h5_path, encoder_sha)
-        trajs = [ref.traj for ref in refs]
-        cached = read_cached(path, meta, trajs)
-        if cached is None:
-            cached = {ref.traj: encode_episode(visual, reader, ref) for ref in refs}
-            write_cached(path, meta, cached)
-            encoded += len(refs)
-        features.update({(str(h5_path), traj): cached[traj] for traj in trajs})
-    reader.close()
+    features, encoded = {}, 0
+
+    def missing() -> dict[Path, list[trajectory.EpisodeRef]]:
+        """Store what the cache holds in `features`; return the episodes it lacks, by shard."""
+        lacking = defaultdict(list)
+        for h5_path, refs in by_shard.items():
+            cached = read_cached(folder / f"{h5_path.stem}.npz", shard_meta(h5_path, encoder_sha))
+            for ref in refs:
+                if ref.traj in cached:
+                    features[(str(h5_path), ref.traj)] = cached[ref.traj]
+                else:
+                    lacking[h5_path].append(ref)
+        return lacking
+
+    if missing():
+        with folder_lock(folder, wait=True):  # one encoder per folder; read again once held
+            reader = EpisodeReader()
+            for h5_path, refs in tqdm(
+                sorted(missing().items()), desc="features", disable=not progress
+            ):
+                path, meta = folder / f"{h5_path.stem}.npz", shard_meta(h5_path, encoder_sha)
+                new = {ref.traj: encode_episode(visual, reader, ref) for ref in refs}
+                trajectory.write_npz_atomic(path, {**read_cached(path, meta), **new}, meta)
+                features.update({(str(h5_path), traj): f for traj, f in new.items()})
+                encoded += len(refs)
+            reader.close()
     logger.info("features of %d episodes (%d encoded) in %s", len(episodes), encoded, folder)
     return features

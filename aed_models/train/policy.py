@@ -1,26 +1,20 @@
 """Train a demonstration-conditioned policy by behaviour cloning (paper, appendix
 "Training details").
 
-Read top to bottom: config -> data -> model -> (resume) -> epochs -> final checkpoint.
+Read top to bottom: config -> data -> model -> (resume) -> epochs -> final checkpoint
+(`aed_models.train.common`: `last.pt` every epoch, resume to the same weights).
 
-- RMSprop; an epoch walks every base environment once (shuffled); an iteration draws from one
-  environment the recipe's demonstrations + agent successes (`PolicyConfig.recipe`).
-- Actions are standardised with statistics of the training rollouts (see `DCPolicy`).
-- After every epoch, `<out>/last.pt` holds model, optimizer, RNG state, epoch and the log,
-  so an interrupted run resumes where it stopped and ends with the same weights;
-  `<out>/train_log.json` holds the per-epoch losses. The result is `<out>/policy.pt`.
-- DCT and SCAN model time step by step, so they see every rollout frame (trained on subsampled
-  episodes they would meet another frame rate online); their demonstrations are thinned
-  (`PolicyConfig.demo_frames`) identically in training and online.
+- An epoch walks every base environment once (shuffled); an iteration draws from one
+  environment the recipe's demonstrations + agent successes. Actions are standardised with
+  the training rollouts' statistics (see `DCPolicy`).
+- DCT and SCAN model time step by step, so they see every rollout frame; their demonstrations
+  are thinned (`PolicyConfig.demo_frames`) identically in training and online.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import logging
-import random
 import time
 from collections import defaultdict
 from dataclasses import dataclass
@@ -34,11 +28,20 @@ import torch.nn.functional as F
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from aed_models.checkpoint import load_checkpoint, save_checkpoint
+from aed_models.checkpoint import Checkpoint
 from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampler, load_episodes
 from aed_models.layout import RunLayout
 from aed_models.policies import FAMILY, POLICIES, PolicyConfig, make_policy
 from aed_models.recipe import PolicyRecipe, Profile, check_profile
+from aed_models.train.common import (
+    TrainingFolder,
+    check_task,
+    config_record,
+    data_key,
+    seed_everything,
+    select_environments,
+    trained_on,
+)
 from aed_models.train.frame_features import frame_features
 from aed_tasks.locks import locks_out_folder
 
@@ -117,77 +120,6 @@ class TrainPolicyConfig(PolicyRecipe):
         )
 
 
-# What a resumed training must share with the one it continues (its epochs may grow).
-RESUME_FIELDS = (
-    "task",
-    "policy",
-    "detector",
-    "profile",
-    "data",
-    "num_envs",
-    "seed",
-    "lr",
-    "weight_decay",
-    "max_frames",
-    "composition",
-    "rollout_frames",
-    "shift",
-    "augment",
-)
-
-
-def check_task(episodes: list, task: str, data: Path) -> None:
-    """Refuse to train a task's model on another task's episodes."""
-    tasks = sorted({e.task for e in episodes})
-    if tasks != [task]:
-        raise ValueError(
-            f"{data}: episodes of {', '.join(tasks) or 'no task'}, not of task={task!r}"
-        )
-
-
-def data_key(episodes: list) -> str:
-    """Identifies the training episodes (shard, trajectory, seed, length of each)."""
-    rows = sorted(f"{e.path.name}/{e.traj}/{e.seed}/{e.length}" for e in episodes)
-    return hashlib.sha256("\n".join(rows).encode()).hexdigest()[:16]
-
-
-def check_same_training(
-    last_path: Path, extra: dict[str, Any], train_config: dict[str, Any], key: str
-) -> None:
-    """Refuse to resume a training under other data or settings, naming the first difference."""
-    stored = extra.get("train_config", {})
-    for name in RESUME_FIELDS:
-        if name in stored and name in train_config and stored[name] != train_config[name]:
-            raise ValueError(
-                f"{last_path}: trained with {name}={stored[name]!r}, this run asks "
-                f"{train_config[name]!r}; pass --no-resume to start over, or another --out"
-            )
-    if extra.get("data_key", key) != key:
-        raise ValueError(
-            f"{last_path}: trained on other episodes than {train_config.get('data')} holds now; "
-            "pass --no-resume to start over, or another --out"
-        )
-
-
-def seed_everything(seed: int) -> None:
-    random.seed(seed)
-    torch.manual_seed(seed)
-
-
-def select_environments(episodes: list, num_envs: int) -> list:
-    """The episodes of the first `num_envs` environments (by index; 0: all)."""
-    if not num_envs:
-        return episodes
-    keep = set(sorted({e.env_index for e in episodes})[:num_envs])
-    return [e for e in episodes if e.env_index in keep]
-
-
-def trained_on(episodes: list) -> dict[str, Any]:
-    """What a checkpoint records of its training data: the split and environment indices, so
-    that evaluation and calibration can refuse to score a model where it trained."""
-    return {"train_split": "base", "train_envs": sorted({int(e.env_index) for e in episodes})}
-
-
 def rollout_actions(episodes: list) -> torch.Tensor:
     """Every action of the agent successes (what the policy is trained to output): (M, 4)."""
     by_file: dict[Path, list[str]] = defaultdict(list)
@@ -259,9 +191,7 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
 
     `policy_cfg` replaces the profile's policy config (tests use tiny ones).
     """
-    out: Path = cfg.out
-    out.mkdir(parents=True, exist_ok=True)
-    last_path, final_path, log_path = out / "last.pt", out / "policy.pt", out / "train_log.json"
+    cfg.out.mkdir(parents=True, exist_ok=True)
     device = torch.device(cfg.device)
     seed_everything(cfg.seed)
 
@@ -283,15 +213,19 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
         lr=cfg.lr,
         weight_decay=cfg.weight_decay,
     )
-    train_config = {
-        k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()
-    }
-    provenance = {
-        "train_config": train_config,
-        "data_key": data_key(episodes),
-        "encoder_sha256": encoder_sha,
-        **trained_on(episodes),
-    }
+    folder = TrainingFolder(
+        cfg.out,
+        "policy.pt",
+        FAMILY,
+        cfg.policy,
+        policy.config.to_dict(),
+        provenance={
+            "train_config": config_record(cfg),
+            "data_key": data_key(episodes),
+            "encoder_sha256": encoder_sha,
+            **trained_on(episodes),
+        },
+    )
 
     dataset = EnvironmentIterations(
         episodes,
@@ -306,30 +240,19 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
     )
 
     # resume, or start from the data's action statistics
-    start_epoch, log = 0, []
-    if cfg.resume and last_path.exists():
-        ckpt = load_checkpoint(last_path, family=FAMILY, name=cfg.policy)
-        check_same_training(last_path, ckpt.extra, train_config, provenance["data_key"])
+    def same(ckpt: Checkpoint) -> str | None:
         if ckpt.extra.get("encoder_sha256") != encoder_sha:
-            raise ValueError(
-                f"{last_path}: trained on another scene encoder than {cfg.encoder}; "
-                "pass --no-resume to start over, or another --out"
-            )
+            return f"trained on another scene encoder than {cfg.encoder}"
         if ckpt.config != policy.config.to_dict():
-            raise ValueError(
-                f"{last_path}: trained with another {cfg.policy} config ({ckpt.config}); "
-                "pass --no-resume or another --out"
-            )
-        policy.load_state_dict(ckpt.state_dict)
-        optimizer.load_state_dict(ckpt.extra["optimizer"])
-        torch.set_rng_state(ckpt.extra["torch_rng"])
-        start_epoch, log = ckpt.extra["epoch"], ckpt.extra["log"]
-        logger.info("resumed from %s after epoch %d", last_path, start_epoch)
-        if start_epoch >= cfg.epochs and final_path.exists():
-            logger.info("%s: already trained for %d epochs", final_path, start_epoch)
-            return final_path  # untouched: its sha256 is what rollouts and detectors are tied to
-    else:
+            return f"trained with another {cfg.policy} config ({ckpt.config})"
+        return None
+
+    resumed = folder.resume(policy, optimizer, same) if cfg.resume else None
+    if resumed is None:
         policy.set_action_stats(rollout_actions(episodes))
+    start_epoch, log = resumed or (0, [])
+    if folder.finished(start_epoch, cfg.epochs):
+        return folder.final
 
     for epoch in range(start_epoch, cfg.epochs):
         policy.train()
@@ -366,29 +289,6 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
         }
         log.append(entry)
         logger.info("epoch %d/%d: %s", epoch + 1, cfg.epochs, entry)
-        save_checkpoint(
-            last_path,
-            family=FAMILY,
-            name=cfg.policy,
-            config=policy.config.to_dict(),
-            state_dict=policy.state_dict(),
-            extra={
-                "epoch": epoch + 1,
-                "optimizer": optimizer.state_dict(),
-                "torch_rng": torch.get_rng_state(),
-                "log": log,
-                **provenance,
-            },
-        )
-        log_path.write_text(json.dumps(log, indent=1))
+        folder.save_epoch(policy, optimizer, epoch + 1, log)
 
-    sha = save_checkpoint(
-        final_path,
-        family=FAMILY,
-        name=cfg.policy,
-        config=policy.config.to_dict(),
-        state_dict=policy.state_dict(),
-        extra={"epoch": cfg.epochs, "log": log, **provenance},
-    )
-    logger.info("wrote %s (sha256 %s)", final_path, sha[:12])
-    return final_path
+    return folder.save_final(policy, cfg.epochs, log)

@@ -162,8 +162,12 @@ def test_features_are_cached_and_equal_the_visual_head(encoder_path, collection,
     assert cached.stat().st_mtime_ns == stamp  # read, not recomputed
     assert all(np.array_equal(again[k], features[k]) for k in features)
     first = [e for e in episodes if e.path.name == "demo_env000_0000.h5"]
-    other = frame_features(encoder.visual, "f" * 64, first, tmp_path, progress=False)
-    assert len(list(tmp_path.glob("*/*/demo_env000_0000.npz"))) == 2 and len(other) == 2
+    other = frame_features(encoder.visual, "f" * 64, first[:1], tmp_path, progress=False)
+    assert len(list(tmp_path.glob("*/*/demo_env000_0000.npz"))) == 2 and len(other) == 1
+    more = frame_features(encoder.visual, "f" * 64, first, tmp_path, progress=False)
+    assert len(more) == 2 and np.array_equal(more[next(iter(other))], next(iter(other.values())))
+    (added,) = [p for p in tmp_path.glob("*/*/demo_env000_0000.npz") if p != cached]
+    assert len(np.load(added).files) == 3  # the second episode added to the first's file
     data = EnvironmentIterations(episodes, "policy", features=features)
     rollouts = data[0]["rollouts"]
     assert "frames" not in rollouts and rollouts["features"].shape[-1] == TINY_VISUAL.out_dim

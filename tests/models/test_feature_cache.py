@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ import torch
 from aed_models.checkpoint import file_sha256
 from aed_models.data import load_episodes
 from aed_models.train.feature_cache import FeatureCache, FeatureCacheError
-from aed_tasks.locks import FolderLockedError, folder_lock
+from aed_tasks.locks import LOCK_NAME, folder_lock
 from tests.helpers import write_synthetic_collection
 
 
@@ -81,13 +82,16 @@ def test_a_file_of_another_seed_or_count_is_stale(collection, policy, tmp_path):
             copy.load(ref)
 
 
-def test_a_cache_being_written_by_another_run_is_refused(collection, policy, tmp_path):
+def test_a_cache_being_written_by_another_run_is_waited_for(collection, policy, tmp_path):
     model, sha = policy
-    cache = FeatureCache(tmp_path, sha, seed=0, num_demos=2)
+    cache, episodes = FeatureCache(tmp_path, sha, seed=0, num_demos=2), load_episodes(collection)
     with folder_lock(cache.dir):
-        with pytest.raises(FolderLockedError, match="another run"):
-            cache.build(load_episodes(collection), model)
-    assert not list(cache.dir.iterdir())  # nothing written, the lock file gone
+        builder = threading.Thread(target=cache.build, args=(episodes, model))
+        builder.start()
+        builder.join(timeout=1.0)
+        assert builder.is_alive() and [p.name for p in cache.dir.iterdir()] == [LOCK_NAME]
+    builder.join(timeout=120)
+    assert not builder.is_alive() and cache.build(episodes, model) == 0  # it wrote every shard
 
 
 def test_bad_keys_and_missing_demonstrations_are_value_errors(collection, policy, tmp_path):

@@ -465,3 +465,16 @@ def test_policy_benchmark_trains_every_mini_policy():
             )
             > 0
         )
+
+
+def test_demonstrations_are_thinned_by_the_datas_rule():
+    from aed_models.data import subsample
+    from aed_models.policies.base import thin_sequences
+
+    lengths = [3, 10, 17]
+    mask = torch.arange(17)[None] < torch.tensor(lengths)[:, None]
+    frames = torch.arange(17.0)[None, :, None].expand(3, 17, 2) * mask[..., None]
+    thinned, new_mask, _ = thin_sequences(frames, mask, None, limit=5)
+    for row, length in enumerate(lengths):
+        kept = thinned[row, new_mask[row], 0].long().numpy()
+        assert np.array_equal(kept, subsample(np.arange(length), 5))

@@ -1,0 +1,188 @@
+"""What every training shares: its data checks, and its folder's checkpoints and resume.
+
+A training folder holds `last.pt` after every epoch (model, optimizer, torch RNG state, epoch,
+log and provenance), `train_log.json` (the per-epoch log) and the final checkpoint. A killed
+run resumes from `last.pt` to the same weights; a run with other data or settings refuses it,
+naming the first difference.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import random
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from aed_models.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
+
+logger = logging.getLogger(__name__)
+
+# What a resumed training must share with the one it continues (its epochs may grow).
+RESUME_FIELDS = (
+    "task",
+    "policy",
+    "detector",
+    "profile",
+    "data",
+    "num_envs",
+    "seed",
+    "lr",
+    "weight_decay",
+    "max_frames",
+    "composition",
+    "rollout_frames",
+    "shift",
+    "augment",
+)
+
+
+def check_task(episodes: list, task: str, data: Path) -> None:
+    """Refuse to train a task's model on another task's episodes."""
+    tasks = sorted({e.task for e in episodes})
+    if tasks != [task]:
+        raise ValueError(
+            f"{data}: episodes of {', '.join(tasks) or 'no task'}, not of task={task!r}"
+        )
+
+
+def data_key(episodes: list) -> str:
+    """Identifies the training episodes (shard, trajectory, seed, length of each)."""
+    rows = sorted(f"{e.path.name}/{e.traj}/{e.seed}/{e.length}" for e in episodes)
+    return hashlib.sha256("\n".join(rows).encode()).hexdigest()[:16]
+
+
+def check_same_training(
+    last_path: Path, extra: dict[str, Any], train_config: dict[str, Any], key: str
+) -> None:
+    """Refuse to resume a training under other data or settings, naming the first difference."""
+    stored = extra.get("train_config", {})
+    for name in RESUME_FIELDS:
+        if name in stored and name in train_config and stored[name] != train_config[name]:
+            raise ValueError(
+                f"{last_path}: trained with {name}={stored[name]!r}, this run asks "
+                f"{train_config[name]!r}; pass --no-resume to start over, or another --out"
+            )
+    if extra.get("data_key", key) != key:
+        raise ValueError(
+            f"{last_path}: trained on other episodes than {train_config.get('data')} holds now; "
+            "pass --no-resume to start over, or another --out"
+        )
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def select_environments(episodes: list, num_envs: int) -> list:
+    """The episodes of the first `num_envs` environments (by index; 0: all)."""
+    if not num_envs:
+        return episodes
+    keep = set(sorted({e.env_index for e in episodes})[:num_envs])
+    return [e for e in episodes if e.env_index in keep]
+
+
+def trained_on(episodes: list) -> dict[str, Any]:
+    """What a checkpoint records of its training data: the split and environment indices, so
+    that evaluation and calibration can refuse to score a model where it trained."""
+    return {"train_split": "base", "train_envs": sorted({int(e.env_index) for e in episodes})}
+
+
+def config_record(cfg: Any) -> dict[str, Any]:
+    """A training config as stored in its checkpoints (paths as strings)."""
+    return {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()}
+
+
+@dataclass
+class TrainingFolder:
+    """The checkpoints of one training: `<out>/last.pt`, `<out>/<final>`, `<out>/train_log.json`.
+
+    `model_config` and `provenance` (the training config as `train_config`, the data key, the
+    environments...) go into every checkpoint; `family` and `name` type them.
+    """
+
+    out: Path
+    final_name: str
+    family: str
+    name: str
+    model_config: dict[str, Any]
+    provenance: dict[str, Any]
+
+    @property
+    def last(self) -> Path:
+        return self.out / "last.pt"
+
+    @property
+    def final(self) -> Path:
+        return self.out / self.final_name
+
+    def resume(
+        self,
+        model: nn.Module,
+        optimizer: torch.optim.Optimizer,
+        same: Callable[[Checkpoint], str | None] | None = None,
+    ) -> tuple[int, list[dict[str, Any]]] | None:
+        """Restore model, optimizer and torch RNG from `last.pt` if there is one; returns the
+        epochs done and the log (None: nothing to resume). Refuses one of another training:
+        other settings or data, or what `same(checkpoint)` names (a message, None if alike)."""
+        if not self.last.exists():
+            return None
+        ckpt = load_checkpoint(self.last, family=self.family, name=self.name)
+        check_same_training(
+            self.last, ckpt.extra, self.provenance["train_config"], self.provenance["data_key"]
+        )
+        problem = same(ckpt) if same is not None else None
+        if problem:
+            raise ValueError(
+                f"{self.last}: {problem}; pass --no-resume to start over, or another --out"
+            )
+        model.load_state_dict(ckpt.state_dict)
+        optimizer.load_state_dict(ckpt.extra["optimizer"])
+        torch.set_rng_state(ckpt.extra["torch_rng"])
+        logger.info("resumed from %s after epoch %d", self.last, ckpt.extra["epoch"])
+        return ckpt.extra["epoch"], ckpt.extra["log"]
+
+    def finished(self, epochs_done: int, epochs: int) -> bool:
+        """Whether the final checkpoint is there for `epochs` (it is then left untouched: its
+        sha256 is what rollouts and detectors are tied to)."""
+        done = epochs_done >= epochs and self.final.exists()
+        if done:
+            logger.info("%s: already trained for %d epochs", self.final, epochs_done)
+        return done
+
+    def save_epoch(
+        self, model: nn.Module, optimizer: torch.optim.Optimizer, epoch: int, log: list
+    ) -> None:
+        """`last.pt` and `train_log.json` after `epoch` epochs."""
+        extra = {
+            **self.provenance,
+            "epoch": epoch,
+            "optimizer": optimizer.state_dict(),
+            "torch_rng": torch.get_rng_state(),
+            "log": log,
+        }
+        self._save(self.last, model, extra)
+        (self.out / "train_log.json").write_text(json.dumps(log, indent=1))
+
+    def save_final(self, model: nn.Module, epochs: int, log: list) -> Path:
+        sha = self._save(self.final, model, {**self.provenance, "epoch": epochs, "log": log})
+        logger.info("wrote %s (sha256 %s)", self.final, sha[:12])
+        return self.final
+
+    def _save(self, path: Path, model: nn.Module, extra: dict[str, Any]) -> str:
+        return save_checkpoint(
+            path,
+            family=self.family,
+            name=self.name,
+            config=self.model_config,
+            state_dict=model.state_dict(),
+            extra=extra,
+        )
