@@ -13,6 +13,8 @@ import hashlib
 import json
 import logging
 import random
+import time
+from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,8 +22,11 @@ from typing import Any
 
 import torch
 from torch import nn
+from torch.utils.data import DataLoader, Dataset
+from tqdm import tqdm
 
 from aed_models.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
+from aed_models.data import EnvironmentSampler
 
 logger = logging.getLogger(__name__)
 
@@ -94,6 +99,42 @@ def trained_on(episodes: list) -> dict[str, Any]:
     """What a checkpoint records of its training data: the split and environment indices, so
     that evaluation and calibration can refuse to score a model where it trained."""
     return {"train_split": "base", "train_envs": sorted({int(e.env_index) for e in episodes})}
+
+
+def run_epoch(
+    dataset: Dataset,
+    update: Callable[[Any], tuple[dict[str, float], int]],
+    epoch: int,
+    seed: int,
+    workers: int = 0,
+    desc: str = "",
+    progress: bool = False,
+) -> dict[str, float]:
+    """One epoch: every environment of `dataset` once, in `epoch`'s seeded order. `update(item)`
+    takes one optimiser step and returns its losses and how many frames it read. Returns the
+    epoch's log entry: the mean losses, the seconds and the frames per second."""
+    loader = DataLoader(
+        dataset,
+        sampler=EnvironmentSampler(len(dataset), 1, seed, start_epoch=epoch),
+        batch_size=None,
+        num_workers=workers,
+    )
+    sums: dict[str, float] = defaultdict(float)
+    frames, start = 0, time.perf_counter()
+    bar = tqdm(loader, desc=desc, disable=not progress, leave=False)
+    for item in bar:
+        parts, read = update(item)
+        for k, v in parts.items():
+            sums[k] += v
+        frames += read
+        bar.set_postfix(loss=f"{parts['loss']:.3f}")
+    seconds = time.perf_counter() - start
+    return {
+        "epoch": epoch + 1,
+        **{k: v / len(dataset) for k, v in sums.items()},
+        "seconds": round(seconds, 2),
+        "frames_per_s": round(frames / seconds, 1),
+    }
 
 
 def config_record(cfg: Any) -> dict[str, Any]:

@@ -16,19 +16,15 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import time
-from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
-from torch.utils.data import DataLoader
-from tqdm import tqdm
 
 from aed_models.augment import RolloutAugment
 from aed_models.checkpoint import Checkpoint, file_sha256
-from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampler, load_episodes
+from aed_models.data import Composition, EnvironmentIterations, load_episodes
 from aed_models.detectors import DETECTORS, FAMILY, make_detector, requires_policy
 from aed_models.detectors.base import to_device
 from aed_models.layout import RunLayout
@@ -38,6 +34,7 @@ from aed_models.train.common import (
     check_task,
     config_record,
     data_key,
+    run_epoch,
     seed_everything,
     select_environments,
     trained_on,
@@ -270,40 +267,18 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
     if folder.finished(start_epoch, cfg.epochs):
         return folder.final
 
+    def update(item: Any) -> tuple[dict[str, float], int]:
+        batch, features = prepare(item, model_type, device)
+        loss, parts = detector.loss(batch, features)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        return {"loss": float(loss.detach()), **parts}, int(batch["rollouts"]["mask"].sum())
+
     for epoch in range(start_epoch, cfg.epochs):
         detector.train()
-        loader = DataLoader(
-            dataset,
-            sampler=EnvironmentSampler(len(dataset), 1, cfg.seed, start_epoch=epoch),
-            batch_size=None,
-            num_workers=cfg.workers,
-        )
-        sums: dict[str, float] = defaultdict(float)
-        frames, start = 0, time.perf_counter()
-        bar = tqdm(
-            loader,
-            desc=f"{cfg.detector} epoch {epoch + 1}/{cfg.epochs}",
-            disable=not cfg.progress,
-            leave=False,
-        )
-        for item in bar:
-            batch, features = prepare(item, model_type, device)
-            loss, parts = detector.loss(batch, features)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            sums["loss"] += float(loss.detach())
-            for k, v in parts.items():
-                sums[k] += v
-            frames += int(batch["rollouts"]["mask"].sum())
-            bar.set_postfix(loss=f"{float(loss.detach()):.3f}")
-        seconds = time.perf_counter() - start
-        entry = {
-            "epoch": epoch + 1,
-            **{k: v / len(dataset) for k, v in sums.items()},
-            "seconds": round(seconds, 2),
-            "frames_per_s": round(frames / seconds, 1),
-        }
+        desc = f"{cfg.detector} epoch {epoch + 1}/{cfg.epochs}"
+        entry = run_epoch(dataset, update, epoch, cfg.seed, cfg.workers, desc, cfg.progress)
         log.append(entry)
         logger.info("epoch %d/%d: %s", epoch + 1, cfg.epochs, entry)
         folder.save_epoch(detector, optimizer, epoch + 1, log)

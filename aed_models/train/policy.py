@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import time
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,11 +24,9 @@ import h5py
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch.utils.data import DataLoader
-from tqdm import tqdm
 
 from aed_models.checkpoint import Checkpoint
-from aed_models.data import Composition, EnvironmentIterations, EnvironmentSampler, load_episodes
+from aed_models.data import Composition, EnvironmentIterations, load_episodes
 from aed_models.layout import RunLayout
 from aed_models.policies import FAMILY, POLICIES, PolicyConfig, make_policy
 from aed_models.recipe import PolicyRecipe, Profile, check_profile
@@ -38,6 +35,7 @@ from aed_models.train.common import (
     check_task,
     config_record,
     data_key,
+    run_epoch,
     seed_everything,
     select_environments,
     trained_on,
@@ -254,39 +252,18 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
     if folder.finished(start_epoch, cfg.epochs):
         return folder.final
 
+    def update(batch: dict) -> tuple[dict[str, float], int]:
+        batch = prepare(batch, cfg, device)
+        loss, parts = policy.loss(batch)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        return parts, int(batch["rollouts"]["mask"].sum() + batch["demos"]["mask"].sum())
+
     for epoch in range(start_epoch, cfg.epochs):
         policy.train()
-        loader = DataLoader(
-            dataset,
-            sampler=EnvironmentSampler(len(dataset), 1, cfg.seed, start_epoch=epoch),
-            batch_size=None,
-            num_workers=cfg.workers,
-        )
-        sums: dict[str, float] = defaultdict(float)
-        frames, start = 0, time.perf_counter()
-        bar = tqdm(
-            loader,
-            desc=f"{cfg.policy} epoch {epoch + 1}/{cfg.epochs}",
-            disable=not cfg.progress,
-            leave=False,
-        )
-        for batch in bar:
-            batch = prepare(batch, cfg, device)
-            loss, parts = policy.loss(batch)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            for k, v in parts.items():
-                sums[k] += v
-            frames += int(batch["rollouts"]["mask"].sum() + batch["demos"]["mask"].sum())
-            bar.set_postfix(loss=f"{parts['loss']:.3f}", pos_mse=f"{parts['pos_mse']:.3f}")
-        seconds = time.perf_counter() - start
-        entry = {
-            "epoch": epoch + 1,
-            **{k: v / len(dataset) for k, v in sums.items()},
-            "seconds": round(seconds, 2),
-            "frames_per_s": round(frames / seconds, 1),
-        }
+        desc = f"{cfg.policy} epoch {epoch + 1}/{cfg.epochs}"
+        entry = run_epoch(dataset, update, epoch, cfg.seed, cfg.workers, desc, cfg.progress)
         log.append(entry)
         logger.info("epoch %d/%d: %s", epoch + 1, cfg.epochs, entry)
         folder.save_epoch(policy, optimizer, epoch + 1, log)
