@@ -357,11 +357,15 @@ def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
     if not scores_path.exists():
         logger.warning("%s: missing, no score-vs-time plot", scores_path)
         return written
-    scored = json.loads(scores_path.read_text())
-    group = (
-        scored.get("labelled") if scored.get("labelled", {}).get("episodes") else scored["rollouts"]
-    )
-    episodes = group["episodes"]
+    try:
+        scored = json.loads(scores_path.read_text())
+        group = (
+            scored["labelled"] if scored.get("labelled", {}).get("episodes") else scored["rollouts"]
+        )
+        episodes, _ = group["episodes"], group["scores"]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        logger.warning("%s: unreadable (%s), no score-vs-time plot", scores_path, e)
+        return written
     success = next((i for i, e in enumerate(episodes) if e["success"]), None)
     failure = next((i for i, e in enumerate(episodes) if not e["success"]), None)
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharey=False)

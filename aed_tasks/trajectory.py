@@ -610,6 +610,9 @@ def read_manifest(root: Path) -> dict[str, Any] | None:
     if not path.exists():
         return None
     try:
-        return json.loads(path.read_text())
+        body = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as e:
         raise CollectionError(path, f"corrupt manifest ({e})") from e
+    if not isinstance(body, dict):
+        raise CollectionError(path, "corrupt manifest (not a JSON object)")
+    return body

@@ -22,12 +22,12 @@ def tree(root: Path) -> dict[str, bytes]:
 
 @pytest.fixture
 def workspace(tmp_path: Path) -> Path:
-    """A runs folder, a plain file, a results file and a manifest that are JSON but not objects."""
+    """A runs folder, a plain file, and a results file and a shard json that are not objects."""
     (tmp_path / "runs").mkdir()
     (tmp_path / "a_file").write_text("mine")
     (tmp_path / "list.json").write_text("[1, 2]")
     (tmp_path / "collection").mkdir()
-    (tmp_path / "collection" / "manifest.json").write_text("[]")
+    (tmp_path / "collection" / "demo_env000_0000.json").write_text("[]")
     return tmp_path
 
 
@@ -64,7 +64,7 @@ CASES = {
         ["report", "--results", "{ws}/list.json"],
         "not an `aed evaluate` results file",
     ),
-    "manifest that is a list": (["data-info", "{ws}/collection"], "not an AED trajectory json"),
+    "shard json that is a list": (["data-info", "{ws}/collection"], "not an AED trajectory json"),
 }
 TAKES_TASK = {"rollout", "train-policy", "train-detector", "train-encoder", "monitor", "evaluate",
               "calibrate", "demo", "collect"}  # fmt: skip
@@ -97,3 +97,26 @@ def test_a_runner_failing_at_start_up_in_a_pool_names_its_error():
     make_runner = functools.partial(RunnerThatCannotStart, "checkpoint.pt: not a policy")
     with pytest.raises(ValueError, match="checkpoint.pt: not a policy"):
         execute([1, 2], make_runner, on_done=lambda _: None, workers=2)
+
+
+def test_json_files_that_are_not_objects_are_named(tmp_path):
+    """A calibration, a manifest and a feature cache's meta that parse but are not objects."""
+    import numpy as np
+
+    from aed_eval.calibrate import read_calibration
+    from aed_models.train.feature_cache import FeatureCache, FeatureCacheError
+    from aed_tasks.trajectory import MANIFEST, CollectionError, EpisodeRef, read_manifest
+
+    (tmp_path / "calibration.json").write_text("[]")
+    with pytest.raises(ValueError, match="not an `aed calibrate` file"):
+        read_calibration(tmp_path / "detector.pt", "0" * 64)
+    (tmp_path / MANIFEST).write_text("[1]")
+    with pytest.raises(CollectionError, match="not a JSON object"):
+        read_manifest(tmp_path)
+    cache = FeatureCache(tmp_path / "cache", "0" * 64, seed=0, num_demos=1)
+    shard = tmp_path / "agent_success_env000_0000.h5"
+    cache.dir.mkdir(parents=True)
+    np.savez(cache.path_for(shard), meta=np.array("[]"))
+    ref = EpisodeRef(shard, "traj_0", "agent_success", TASK, "base", 0, 5, 0, True)
+    with pytest.raises(FeatureCacheError, match="its meta is not a JSON object"):
+        cache.load(ref)

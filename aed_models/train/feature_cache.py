@@ -124,6 +124,8 @@ class FeatureCache:
                 arrays = {k: data[k] for k in data.files if k != "meta"}
         except (OSError, ValueError, KeyError, zipfile.BadZipFile, json.JSONDecodeError) as e:
             raise FeatureCacheError(f"{path}: corrupt cache file ({type(e).__name__}: {e})") from e
+        if not isinstance(meta, dict):
+            raise FeatureCacheError(f"{path}: corrupt cache file (its meta is not a JSON object)")
         problem = self._stale(meta, shard, refs)
         if problem:
             raise FeatureCacheError(f"{path}: stale cache file ({problem})")
