@@ -25,6 +25,7 @@ from aed_models.data import (
 )
 from aed_tasks import trajectory
 from aed_tasks.episode import Episode
+from tests.helpers import recorded_episode, write_synthetic_collection
 
 H, W = 120, 160
 ONSET = 9
@@ -40,55 +41,21 @@ def synthetic(
     rgb[..., 0] = t[:, None, None]
     rgb[..., 1] = 100 + env_index
     depth = (10 * t[:, None, None, None] * np.ones((1, H, W, 1))).astype(np.int16)
-    failure = role == "agent_failure"
-    labels = (np.arange(steps) >= ONSET).astype(np.uint8) if failure else np.zeros(steps, np.uint8)
-    episode = Episode(
-        env_id="AED-PickPlace-base",
-        task="PickPlace",
-        split="base",
-        env_index=env_index,
-        seed=seed,
-        demonstrator=role == "demo",
-        control_mode="pd_ee_delta_pos",
-        actions=np.tile(np.arange(steps, dtype=np.float32)[:, None], (1, 4)),
-        success=np.arange(steps) == steps - 1 if not failure else np.zeros(steps, bool),
-        fail=np.zeros(steps, bool),
-        stage=np.zeros(steps, np.int16),
-        error_label=labels,
-        error_kind="no_grasp" if failure else None,
-        error_onset=ONSET if failure else None,
+    tcp_pose = np.stack([t / 1000, 0 * t, 0 * t + 0.2, 1 + 0 * t, 0 * t, 0 * t, 0 * t], 1)
+    actions = np.tile(np.arange(steps, dtype=np.float32)[:, None], (1, 4))
+    onset = ONSET if role == "agent_failure" else None
+    return recorded_episode(
+        "PickPlace", role, env_index, seed, rgb, depth, actions, tcp_pose, onset=onset
     )
-    steps_rec = trajectory.RecordedSteps(
-        obs={
-            "sensor_data": {"front": {"rgb": rgb, "depth": depth}},
-            "extra": {
-                "tcp_pose": np.stack(
-                    [t / 1000, 0 * t, 0 * t + 0.2, 1 + 0 * t, 0 * t, 0 * t, 0 * t], 1
-                ).astype(np.float32)
-            },
-            "agent": {"qpos": np.tile(np.float32([0.0] * 7 + [0.04, 0.04]), (steps + 1, 1))},
-        },
-        env_states=None,
-        terminated=np.zeros(steps, bool),
-        truncated=np.zeros(steps, bool),
-        rewards=np.zeros(steps, np.float32),
-        reset_kwargs={"seed": seed, "options": {"env_index": env_index}},
-    )
-    return episode, steps_rec
 
 
 @pytest.fixture(scope="module")
 def collection(tmp_path_factory) -> Path:
     """Two environments; per env 3 demos, 4 successes, 2 failures of lengths 15..24."""
-    root = tmp_path_factory.mktemp("synthetic")
-    info = {"env_id": "aed_tasks:AED-PickPlace-base", "env_kwargs": {}, "max_episode_steps": 250}
-    for env_index in (0, 1):
-        for role, n in (("demo", 3), ("agent_success", 4), ("agent_failure", 2)):
-            writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
-            for k in range(n):
-                writer.add(*synthetic(role, env_index, seed=100 * env_index + k, steps=15 + 3 * k))
-            writer.commit(info, {"env_index": env_index, "group": role})
-    return root
+    counts = {"demo": 3, "agent_success": 4, "agent_failure": 2}
+    return write_synthetic_collection(
+        tmp_path_factory.mktemp("synthetic"), counts, steps=15, step_increment=3
+    )
 
 
 def test_composition_shapes_and_roles(collection):

@@ -45,19 +45,15 @@ def collection(tmp_path_factory) -> Path:
 def scenes(tmp_path_factory) -> Path:
     """Press Button with env states (what the scene encoder learns): per environment 2 demos and
     2 successes."""
-    from aed_tasks import trajectory
     from tests.models.test_encoder import synthetic
 
-    root = tmp_path_factory.mktemp("scenes")
-    info = {"env_id": "aed_tasks:AED-PressButton-base", "env_kwargs": {}, "max_episode_steps": 100}
-    for env_index in range(2):
-        for role in ("demo", "agent_success"):
-            writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
-            for k in range(2):
-                seed = 100 * env_index + 10 * (role == "demo") + k
-                writer.add(*synthetic(role, env_index, seed, steps=6 + 2 * k))
-            writer.commit(info, {"env_index": env_index, "group": role})
-    return root
+    return write_synthetic_collection(
+        tmp_path_factory.mktemp("scenes"),
+        {"demo": 2, "agent_success": 2},
+        steps=6,
+        make_episode=synthetic,
+        demo_seed_offset=10,
+    )
 
 
 @pytest.fixture(scope="module")

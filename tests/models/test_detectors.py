@@ -20,6 +20,7 @@ from aed_models.detectors import (
     make_detector,
     save_detector,
 )
+from tests.helpers import write_synthetic_collection
 
 FIXTURES = Path(__file__).parents[1] / "fixtures"
 H = W = 32
@@ -397,18 +398,8 @@ def test_checkpoints_with_the_running_max_option_load_or_say_why_not(name, tmp_p
 def collection(tmp_path_factory):
     """Two environments; per env 3 demos, 3 successes, 3 failures (tests/test_data.py's
     episodes)."""
-    from aed_tasks import trajectory
-    from tests.test_data import synthetic
-
-    root = tmp_path_factory.mktemp("collection")
-    info = {"env_id": "aed_tasks:AED-PickPlace-base", "env_kwargs": {}, "max_episode_steps": 250}
-    for env_index in (0, 1):
-        for role in ("demo", "agent_success", "agent_failure"):
-            writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
-            for k in range(3):
-                writer.add(*synthetic(role, env_index, seed=100 * env_index + k, steps=12 + 2 * k))
-            writer.commit(info, {"env_index": env_index, "group": role})
-    return root
+    counts = {"demo": 3, "agent_success": 3, "agent_failure": 3}
+    return write_synthetic_collection(tmp_path_factory.mktemp("collection"), counts, steps=12)
 
 
 @pytest.fixture(scope="module")

@@ -18,9 +18,7 @@ from aed_models.policies import POLICIES, load_policy
 from aed_models.train.encoder import TrainEncoderConfig, localization_errors, train_encoder
 from aed_models.train.frame_features import frame_features
 from aed_models.train.policy import TrainPolicyConfig, train_policy
-from aed_tasks import trajectory
-from aed_tasks.episode import Episode
-from tests.helpers import load_script
+from tests.helpers import load_script, recorded_episode, write_synthetic_collection
 
 H, W = 32, 40
 TINY_VISUAL = VisualHeadConfig(arch="small_cnn", out_dim=16, width=4, dropout=0.0)
@@ -44,54 +42,26 @@ def synthetic(role: str, env_index: int, seed: int, steps: int):
     actor = np.zeros((steps + 1, 13), np.float32)
     actor[:, 0], actor[:, 1], actor[:, 3] = bx, by, 1.0
     actions = np.concatenate([np.diff(tcp_xy, axis=0) * 10, np.zeros((steps, 2))], axis=1)
-    episode = Episode(
-        env_id="AED-PressButton-base",
-        task="PressButton",
-        split="base",
-        env_index=env_index,
-        seed=seed,
-        demonstrator=role == "demo",
-        control_mode="pd_ee_delta_pos",
-        actions=actions.astype(np.float32),
-        success=np.arange(steps) == steps - 1,
-        fail=np.zeros(steps, bool),
-        stage=np.zeros(steps, np.int16),
-        error_label=np.zeros(steps, np.uint8),
-        error_kind=None,
-        error_onset=None,
-    )
     states = {
         "actors": {"button": actor, "distractor_0": actor * 0},
         "articulations": {"panda": np.zeros((steps + 1, 31), np.float32)},
     }
-    steps_rec = trajectory.RecordedSteps(
-        obs={
-            "sensor_data": {"front": {"rgb": rgb, "depth": depth}},
-            "extra": {"tcp_pose": tcp_pose},
-            "agent": {"qpos": np.tile(np.float32([0.0] * 7 + [0.04, 0.04]), (steps + 1, 1))},
-        },
-        env_states=states,
-        terminated=np.zeros(steps, bool),
-        truncated=np.zeros(steps, bool),
-        rewards=np.zeros(steps, np.float32),
-        reset_kwargs={"seed": seed, "options": {"env_index": env_index}},
+    return recorded_episode(
+        "PressButton", role, env_index, seed, rgb, depth, actions, tcp_pose, env_states=states
     )
-    return episode, steps_rec
 
 
 @pytest.fixture(scope="module")
 def collection(tmp_path_factory) -> Path:
     """Three environments; per env 2 demos and 3 agent successes of 6..10 steps."""
-    root = tmp_path_factory.mktemp("encoder_data")
-    info = {"env_id": "aed_tasks:AED-PressButton-base", "env_kwargs": {}, "max_episode_steps": 100}
-    for env_index in range(3):
-        for role, n in (("demo", 2), ("agent_success", 3)):
-            writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
-            for k in range(n):
-                seed = 100 * env_index + 10 * (role == "demo") + k
-                writer.add(*synthetic(role, env_index, seed, steps=6 + 2 * k))
-            writer.commit(info, {"env_index": env_index, "group": role})
-    return root
+    return write_synthetic_collection(
+        tmp_path_factory.mktemp("encoder_data"),
+        {"demo": 2, "agent_success": 3},
+        envs=(0, 1, 2),
+        steps=6,
+        make_episode=synthetic,
+        demo_seed_offset=10,
+    )
 
 
 def encoder_config(collection: Path, out: Path, **kw) -> TrainEncoderConfig:

@@ -16,7 +16,7 @@ from aed_models.policies import POLICIES, load_policy, make_policy, save_policy
 from aed_models.train.policy import TrainPolicyConfig, train_policy
 from aed_tasks import trajectory
 from aed_tasks.episode import Episode
-from tests.helpers import load_script
+from tests.helpers import load_script, recorded_episode, write_synthetic_collection
 
 H, W = 32, 40
 TINY = {
@@ -260,56 +260,21 @@ def synthetic(
     actions = np.stack(
         [2 * b - 1, 1 - 2 * b, np.zeros_like(b), np.where(b > 0.5, 1.0, -1.0)], axis=1
     )[:steps]
-    episode = Episode(
-        env_id="AED-PressButton-base",
-        task="PressButton",
-        split="base",
-        env_index=env_index,
-        seed=seed,
-        demonstrator=role == "demo",
-        control_mode="pd_ee_delta_pos",
-        actions=actions.astype(np.float32),
-        success=np.arange(steps) == steps - 1,
-        fail=np.zeros(steps, bool),
-        stage=np.zeros(steps, np.int16),
-        error_label=np.zeros(steps, np.uint8),
-        error_kind=None,
-        error_onset=None,
-    )
-    steps_rec = trajectory.RecordedSteps(
-        obs={
-            "sensor_data": {"front": {"rgb": rgb, "depth": depth}},
-            "extra": {"tcp_pose": np.tile(np.float32([0.1, 0.0, 0.2, 1, 0, 0, 0]), (steps + 1, 1))},
-            "agent": {"qpos": np.tile(np.float32([0.0] * 7 + [0.04, 0.04]), (steps + 1, 1))},
-        },
-        env_states=None,
-        terminated=np.zeros(steps, bool),
-        truncated=np.zeros(steps, bool),
-        rewards=np.zeros(steps, np.float32),
-        reset_kwargs={"seed": seed, "options": {"env_index": env_index}},
-    )
-    return episode, steps_rec
+    tcp_pose = np.tile(np.float32([0.1, 0.0, 0.2, 1, 0, 0, 0]), (steps + 1, 1))
+    return recorded_episode("PressButton", role, env_index, seed, rgb, depth, actions, tcp_pose)
 
 
 @pytest.fixture(scope="module")
 def collection(tmp_path_factory) -> Path:
     """Four environments; per env 2 demos and 4 agent successes of 8..14 steps."""
-    root = tmp_path_factory.mktemp("policy_data")
-    info = {"env_id": "aed_tasks:AED-PressButton-base", "env_kwargs": {}, "max_episode_steps": 100}
-    for env_index in range(4):
-        for role, n in (("demo", 2), ("agent_success", 4)):
-            writer = trajectory.ShardWriter(root / f"{role}_env{env_index:03d}_0000.h5")
-            for k in range(n):
-                writer.add(
-                    *synthetic(
-                        role,
-                        env_index,
-                        seed=100 * env_index + 10 * (role == "demo") + k,
-                        steps=8 + 2 * k,
-                    )
-                )
-            writer.commit(info, {"env_index": env_index, "group": role})
-    return root
+    return write_synthetic_collection(
+        tmp_path_factory.mktemp("policy_data"),
+        {"demo": 2, "agent_success": 4},
+        envs=(0, 1, 2, 3),
+        steps=8,
+        make_episode=synthetic,
+        demo_seed_offset=10,
+    )
 
 
 def train_config(collection: Path, out: Path, **kw) -> TrainPolicyConfig:
