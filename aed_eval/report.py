@@ -362,7 +362,7 @@ def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
         group = (
             scored["labelled"] if scored.get("labelled", {}).get("episodes") else scored["rollouts"]
         )
-        episodes, _ = group["episodes"], group["scores"]
+        episodes, scores = group["episodes"], group["scores"]
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
         logger.warning("%s: unreadable (%s), no score-vs-time plot", scores_path, e)
         return written
@@ -373,7 +373,7 @@ def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
         if index is None:
             ax.set_title(f"no {title} episode")
             continue
-        for name, values in group["scores"].items():
+        for name, values in scores.items():
             ax.plot(values[index], label=name)
         onset = episodes[index].get("onset_frame")
         if onset is not None:
