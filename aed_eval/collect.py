@@ -37,7 +37,7 @@ from aed_tasks import trajectory
 
 logger = logging.getLogger(__name__)
 
-GROUPS = ("demo", "demo_suboptimal", "agent_success", "agent_failure")
+GROUPS = ("demo", "demo_suboptimal", "agent_success", "agent_failure", "explore")
 IDENTITY = ("task", "split", "seed", "obs_mode", "cameras", "shard_size")  # must match to resume
 
 
@@ -67,6 +67,9 @@ class CollectConfig:
     """Explicit environment indices (default: the first `num_envs`)."""
     num_suboptimal_demos: int = 0
     """Sub-optimal demonstrations per environment (failed first attempt, then success)."""
+    num_explore: int = 0
+    """Exploration episodes per environment (the arm visits random poses; frames for the scene
+    encoder, `aed_tasks.expert.explore`)."""
     shard_size: int = 10
     """Episodes per shard file (the unit of atomic writes and of resuming)."""
     workers: int = 1
@@ -105,7 +108,13 @@ class CollectConfig:
             )
         check_profile(self.profile)
         size = task_cls.catalogue_sizes[self.split]
-        for name in ("num_demos", "num_successes", "num_failures", "num_suboptimal_demos"):
+        for name in (
+            "num_demos",
+            "num_successes",
+            "num_failures",
+            "num_suboptimal_demos",
+            "num_explore",
+        ):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 0")
         bad = [i for i in self.envs if not 0 <= i < size]
@@ -180,6 +189,7 @@ class CollectConfig:
             "demo_suboptimal": self.num_suboptimal_demos,
             "agent_success": self.num_successes,
             "agent_failure": self.num_failures,
+            "explore": self.num_explore,
         }
 
     def identity(self) -> dict[str, Any]:
@@ -305,7 +315,7 @@ class ExpertRunner(EpisodeRunner):
         """One accepted episode and why earlier tries were rejected: a retry with the next seed
         when the expert cannot plan it or its outcome is not the role's (a clean expert that
         failed, an error that did not fail in its named way, a script cut by the time limit)."""
-        from aed_tasks.expert import ErrorSpec, solve
+        from aed_tasks.expert import ErrorSpec, explore, solve
 
         env = self.env(shard)
         error = None
@@ -316,15 +326,18 @@ class ExpertRunner(EpisodeRunner):
             seed = episode_seed(
                 self.cfg.seed, shard.task, shard.split, shard.env_index, shard.group, k, attempt
             )
-            try:
-                episode = solve(  # frames=False: the step recorder around `env` keeps them
-                    env,
-                    seed,
-                    error=error,
-                    env_index=shard.env_index,
-                    suboptimal=shard.suboptimal,
-                    frames=False,
-                )
+            try:  # frames=False: the step recorder around `env` keeps them
+                if shard.role == "explore":
+                    episode = explore(env, seed, env_index=shard.env_index, frames=False)
+                else:
+                    episode = solve(
+                        env,
+                        seed,
+                        error=error,
+                        env_index=shard.env_index,
+                        suboptimal=shard.suboptimal,
+                        frames=False,
+                    )
             except RuntimeError as e:  # e.g. a script that never reached its error's moment
                 problem = f"{type(e).__name__}: {e}"
             else:
@@ -356,6 +369,8 @@ def _rejection(episode: Any, shard: Shard) -> str:
         return f"ran in environment {episode.env_index}, not {shard.env_index}"
     if episode.truncated:
         return "the time limit cut the expert's script"
+    if shard.role == "explore":
+        return ""
     if shard.role == "agent_failure":
         if episode.succeeded:
             return "the intervened expert still succeeded"

@@ -24,6 +24,7 @@ def summarize(root: Path, check: trajectory.Check = "quick") -> dict[str, Any]:
     lengths: dict[str, list[int]] = defaultdict(list)
     for e in episodes:
         lengths[e.role].append(e.length)
+    outcomes = [e for e in episodes if e.role != "explore"]  # exploration has no outcome
     frames = sum(e.num_frames for e in episodes)
     disk = sum(s.num_bytes for s in collection.shards)
     manifest = trajectory.read_manifest(root) or {}
@@ -43,9 +44,9 @@ def summarize(root: Path, check: trajectory.Check = "quick") -> dict[str, Any]:
         "lengths": {role: _stats(v) for role, v in sorted(lengths.items())},
         # the same endings for both outcomes: their length distributions should overlap
         "lengths_by_outcome": {
-            outcome: _stats([e.length for e in episodes if e.success == (outcome == "success")])
+            outcome: _stats([e.length for e in outcomes if e.success == (outcome == "success")])
             for outcome in ("success", "failure")
-            if any(e.success == (outcome == "success") for e in episodes)
+            if any(e.success == (outcome == "success") for e in outcomes)
         },
         "success_rate": {
             role: float(np.mean([e.success for e in episodes if e.role == role]))

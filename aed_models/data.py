@@ -119,15 +119,17 @@ def task_objects(group: Any) -> Iterator[tuple[str, str, int]]:
             yield kind, name, joints
 
 
-def scene_state(group: Any) -> np.ndarray:
+def scene_state(group: Any, stage_target: bool = True) -> np.ndarray:
     """(T + 1, D) float32: where things are at every frame of one stored episode.
 
-    The TCP position, the stage target (`stage_subgoals`), then each task object's root position
-    and joint positions (`task_objects`). The encoder learns these from the frame
-    (`aed_models.encoder`); the policies act from RGB-D alone.
+    The TCP position, the stage target (`stage_subgoals`; NaN with `stage_target=False`, for an
+    episode that does not do the task), then each task object's root position and joint
+    positions (`task_objects`). The encoder learns these from the frame (`aed_models.encoder`);
+    the policies act from RGB-D alone.
     """
     tcp = group["obs/extra/tcp_pose"][()][:, :3].astype(np.float32)
-    parts = [tcp, stage_subgoals(tcp, group["stage"][()])]
+    target = stage_subgoals(tcp, group["stage"][()])
+    parts = [tcp, target if stage_target else np.full_like(target, np.nan)]
     for kind, name, joints in task_objects(group):
         state = group["env_states"][kind][name][()].astype(np.float32)
         parts += [state[:, :3], state[:, 13 : 13 + joints]]

@@ -104,6 +104,9 @@ class AEDBaseEnv(BaseEnv):
     # nothing: twice the longest clean expert episode (imitating policies are slower than the
     # expert), at most the time limit; results/expert_lengths/ has the lengths
     eval_horizon: ClassVar[int] = 200
+    # where exploration episodes send the TCP (`aed_tasks.expert.explore`): x0, x1, y0, y1 on
+    # the table top (robot base frame) and z0, z1 above it, covering every task's objects
+    explore_region: ClassVar[tuple[float, ...]] = (-0.3, 0.15, -0.3, 0.3, 0.03, 0.25)
 
     def __init__(
         self,

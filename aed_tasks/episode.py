@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-ROLES = ("demo", "agent_success", "agent_failure", "policy_rollout")
+ROLES = ("demo", "agent_success", "agent_failure", "explore", "policy_rollout")
 
 
 @dataclass
@@ -45,6 +45,8 @@ class Episode:
     first_attempt_steps: int | None = None
     first_attempt_kind: str | None = None
     first_attempt_problem: str = ""
+    # the arm visits random poses instead of doing the task (`aed_tasks.expert.explore`)
+    explore: bool = False
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -64,6 +66,8 @@ class Episode:
     def role(self) -> str:
         if self.demonstrator:
             return "demo"
+        if self.explore:
+            return "explore"
         return "agent_failure" if self.error_kind is not None else "agent_success"
 
 

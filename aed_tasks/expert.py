@@ -305,6 +305,33 @@ def solve(
     return episode
 
 
+def explore(
+    env: Any, seed: int, env_index: int | None = None, frames: bool = True, segments: int = 4
+) -> Episode:
+    """The arm visits `segments` random points of the task's `explore_region`, opening or
+    closing the gripper at random, instead of doing the task.
+
+    In the experts' episodes the arm heads for the task objects, so where the arm is already
+    tells where they are: a scene encoder trained on those frames alone learned to read the
+    objects' positions off the arm's. These frames, labelled by the env states like any other,
+    break that shortcut. Resets with `seed` (and `env_index`); `frames` as in `solve`.
+    """
+    base = env.unwrapped
+    obs, _ = env.reset(seed=seed, options={} if env_index is None else {"env_index": env_index})
+    rng = np.random.default_rng([seed, 2])
+    expert = ScriptedExpert(env, rng, float(rng.uniform(0.015, 0.03)), keep_observations=frames)
+    x0, x1, y0, y1, z0, z1 = base.explore_region
+    try:
+        for _ in range(segments):
+            expert.gripper = OPEN if rng.random() < 0.5 else CLOSED
+            expert.move_to(rng.uniform([x0, y0, z0], [x1, y1, z1]), settle=0)
+    except EpisodeOver:
+        pass
+    episode = _episode(base, seed, None, expert, obs)
+    episode.explore, episode.truncated = True, expert.truncated
+    return episode
+
+
 def _first_attempt_problem(base: Any, expert: ScriptedExpert, kind: str) -> str:
     """'' when a sub-optimal demonstration's first attempt failed, in its named way, else why
     not."""

@@ -36,7 +36,8 @@ def recorded_episode(
     onset: int | None = None,
 ) -> tuple[Any, Any]:
     """A synthetic base-split episode as the collector records it: (T + 1) frames and TCP poses,
-    T actions, success at the last step, or (`onset` given) a `no_grasp` failure from `onset`."""
+    T actions, success at the last step, or (`onset` given) a `no_grasp` failure from `onset`
+    (role `explore`: an exploration episode)."""
     from aed_tasks import trajectory
     from aed_tasks.episode import Episode
 
@@ -59,6 +60,7 @@ def recorded_episode(
         error_label=labels,
         error_kind=None if onset is None else "no_grasp",
         error_onset=onset,
+        explore=role == "explore",
     )
     recorded = trajectory.RecordedSteps(
         obs={

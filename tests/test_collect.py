@@ -21,6 +21,7 @@ import torch
 from aed_eval.collect import CollectConfig, CollectError, check_retry_rate, retries, run_collection
 from aed_eval.data_info import summarize
 from aed_models.data import EnvironmentIterations, load_episodes
+from aed_models.recipe import Composition
 from aed_tasks import trajectory
 
 AED = str(Path(sys.executable).with_name("aed"))
@@ -186,6 +187,34 @@ def test_data_info_counts_roles_and_kinds(rgbd_collection):
     )
     assert result.returncode == 0, result.stderr
     assert "4 episodes" in result.stdout and "agent_failure 2" in result.stdout
+
+
+def test_exploration_episodes_move_the_arm_anywhere_and_only_the_encoder_reads_them(tmp_path):
+    """`--num-explore`: the arm visits random points of the task's region, away from the task
+    objects; the policies' and detectors' training draws leave these episodes out."""
+    from aed_tasks.tasks.press_button import PressButtonEnv
+
+    run = {**STATE_RUN, "task": "PressButton", "envs": (0,), "num_demos": 1, "num_successes": 1}
+    run.update(num_failures=0, num_explore=2, obs_mode="rgbd", out=tmp_path)
+    cfg = CollectConfig.from_preset(**run)
+    run_collection(cfg)
+    episodes = load_episodes(tmp_path)
+    explore = [e for e in episodes if e.role == "explore"]
+    assert len(explore) == 2 and summarize(tmp_path)["by_role"]["explore"] == 2
+    x0, x1, y0, y1, z0, z1 = PressButtonEnv.explore_region
+    for ref in explore:
+        with h5py.File(ref.path, "r") as h5:
+            tcp = h5[ref.traj]["obs/extra/tcp_pose"][()][:, :3]
+            button = h5[ref.traj]["env_states/articulations/button"][0, :3]
+        travelled = np.linalg.norm(np.diff(tcp, axis=0), axis=1).sum()
+        assert ref.length >= 10 and travelled > 0.2, (ref.length, travelled)
+        assert (tcp[-1, :2] >= [x0 - 0.02, y0 - 0.02]).all()
+        assert (tcp[-1, :2] <= [x1 + 0.02, y1 + 0.02]).all()
+        assert np.linalg.norm(tcp[-1] - button) > 0.01  # it went somewhere, not to the button
+    drawn = EnvironmentIterations(episodes, Composition(1, 1), seed=0)[0]
+    assert drawn["rollouts"]["lengths"].tolist() == [
+        e.num_frames for e in episodes if e.role == "agent_success"
+    ]
 
 
 @pytest.mark.slow

@@ -29,9 +29,14 @@ class SceneEncoder(nn.Module):
         self.sha256 = ""
 
     def set_state_stats(self, states: torch.Tensor) -> None:
-        """Per-column mean and std (floored at 1 mm) of the training states (M, D)."""
-        self.state_mean.copy_(states.mean(0))
-        self.state_std.copy_(states.std(0).clamp_min(1e-3))
+        """Per-column mean and std (floored at 1 mm) of the training states (M, D), over the
+        known (finite) entries."""
+        known = torch.isfinite(states)
+        count = known.sum(0).clamp_min(2)
+        mean = torch.where(known, states, 0.0).sum(0) / count
+        var = torch.where(known, (states - mean) ** 2, 0.0).sum(0) / (count - 1)
+        self.state_mean.copy_(mean)
+        self.state_std.copy_(var.sqrt().clamp_min(1e-3))
 
     def forward(self, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         features = self.visual(frames)

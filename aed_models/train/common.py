@@ -26,7 +26,7 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
 from aed_models.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
-from aed_models.data import EnvironmentSampler
+from aed_models.data import EnvironmentSampler, load_episodes
 
 logger = logging.getLogger(__name__)
 
@@ -85,6 +85,13 @@ def check_same_training(
 def seed_everything(seed: int) -> None:
     random.seed(seed)
     torch.manual_seed(seed)
+
+
+def task_episodes(data: Path, num_envs: int) -> list:
+    """The base episodes of a collection's first `num_envs` environments (0: all) that do the
+    task: exploration episodes (`aed collect --num-explore`) are the scene encoder's alone."""
+    episodes = [e for e in load_episodes(data, split="base") if e.role != "explore"]
+    return select_environments(episodes, num_envs)
 
 
 def select_environments(episodes: list, num_envs: int) -> list:

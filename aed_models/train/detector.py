@@ -24,7 +24,7 @@ import torch
 
 from aed_models.augment import RolloutAugment
 from aed_models.checkpoint import Checkpoint, file_sha256
-from aed_models.data import Composition, EnvironmentIterations, load_episodes
+from aed_models.data import Composition, EnvironmentIterations
 from aed_models.detectors import DETECTORS, FAMILY, make_detector, requires_policy
 from aed_models.detectors.base import to_device
 from aed_models.layout import RunLayout
@@ -36,7 +36,7 @@ from aed_models.train.common import (
     data_key,
     run_epoch,
     seed_everything,
-    select_environments,
+    task_episodes,
     trained_on,
 )
 from aed_models.train.feature_cache import FeatureCache, FeatureIterations
@@ -215,7 +215,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
         policy.to(device)
 
     # data
-    episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
+    episodes = task_episodes(cfg.data, cfg.num_envs)
     check_task(episodes, cfg.task, cfg.data)
     dataset = build_dataset(cfg, cfg.detector, episodes, policy, policy_sha or "")
     logger.info(

@@ -114,8 +114,18 @@ class SceneFrames:
 
 
 def read_scene_state(ref: trajectory.EpisodeRef) -> np.ndarray:
+    """The episode's scene state; an exploration episode has no stage target (NaN)."""
     with h5py.File(ref.path, "r") as h5:
-        return scene_state(h5[ref.traj])
+        return scene_state(h5[ref.traj], stage_target=ref.role != "explore")
+
+
+def state_loss(
+    predicted: torch.Tensor, states: torch.Tensor, encoder: SceneEncoder
+) -> torch.Tensor:
+    """MSE of the standardised state over the known (finite) entries."""
+    known = torch.isfinite(states)
+    target = (states - encoder.state_mean) / encoder.state_std
+    return F.mse_loss(predicted[known], target[known])
 
 
 def state_names(ref: trajectory.EpisodeRef) -> tuple[str, ...]:
@@ -210,7 +220,7 @@ def train_encoder(cfg: TrainEncoderConfig, encoder_cfg: EncoderConfig | None = N
         for update in bar:
             frames, states = update_batch(data, update, cfg, generator)
             _, predicted = encoder(frames)
-            loss = F.mse_loss(predicted, (states - encoder.state_mean) / encoder.state_std)
+            loss = state_loss(predicted, states, encoder)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -254,4 +264,4 @@ def localization_errors(
         diff = (predicted - states).numpy()
         for name, cols in groups.items():
             errors[name].append(np.linalg.norm(diff[:, cols], axis=1))
-    return {name: float(np.concatenate(e).mean() * 100) for name, e in errors.items()}
+    return {name: float(np.nanmean(np.concatenate(e)) * 100) for name, e in errors.items()}

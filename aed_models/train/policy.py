@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 
 from aed_models.checkpoint import Checkpoint
-from aed_models.data import Composition, EnvironmentIterations, load_episodes
+from aed_models.data import Composition, EnvironmentIterations
 from aed_models.layout import RunLayout
 from aed_models.policies import FAMILY, POLICIES, PolicyConfig, make_policy
 from aed_models.recipe import PolicyRecipe, Profile, check_profile
@@ -37,7 +37,7 @@ from aed_models.train.common import (
     data_key,
     run_epoch,
     seed_everything,
-    select_environments,
+    task_episodes,
     trained_on,
 )
 from aed_models.train.frame_features import frame_features
@@ -194,7 +194,7 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
     seed_everything(cfg.seed)
 
     # data
-    episodes = select_environments(load_episodes(cfg.data, split="base"), cfg.num_envs)
+    episodes = task_episodes(cfg.data, cfg.num_envs)
     check_task(episodes, cfg.task, cfg.data)
 
     # model, with the scene encoder as its frozen visual head when the config says so

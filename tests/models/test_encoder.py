@@ -15,7 +15,13 @@ from aed_models.data import EnvironmentIterations, load_episodes, scene_state, s
 from aed_models.encoder import EncoderConfig, load_encoder
 from aed_models.nn import VisualHeadConfig
 from aed_models.policies import POLICIES, load_policy
-from aed_models.train.encoder import TrainEncoderConfig, localization_errors, train_encoder
+from aed_models.train.encoder import (
+    TrainEncoderConfig,
+    localization_errors,
+    read_scene_state,
+    state_loss,
+    train_encoder,
+)
 from aed_models.train.frame_features import frame_features
 from aed_models.train.policy import TrainPolicyConfig, train_policy
 from tests.helpers import load_script, recorded_episode, write_synthetic_collection
@@ -102,6 +108,32 @@ def test_encoder_learns_where_the_square_is(encoder_path, collection):
     positions = np.array(positions)
     mean_error = 100 * np.linalg.norm(positions - positions.mean(0), axis=1).mean()
     assert errors["button"] < 0.8 * mean_error, (errors, mean_error)  # not the mean's guess
+
+
+def test_exploration_frames_train_the_encoder_without_a_stage_target(collection, tmp_path):
+    """Exploration episodes (`aed collect --num-explore`) label where things are but have no
+    stage target: it is NaN in their scene state and left out of the loss and the statistics."""
+    explore = write_synthetic_collection(
+        tmp_path / "explore", {"explore": 2}, envs=(0, 1), steps=6, make_episode=synthetic
+    )
+    ref = load_episodes(explore)[0]
+    state = read_scene_state(ref)
+    assert ref.role == "explore" and np.isnan(state[:, 3:6]).all()
+    assert np.isfinite(np.delete(state, [3, 4, 5], axis=1)).all()
+    for shard in collection.glob("*_env00[01]_*"):  # the experts' episodes of the same envs
+        (explore / shard.name).symlink_to(shard)
+    path = train_encoder(encoder_config(explore, tmp_path / "encoder", epochs=2), TINY)
+    log = json.loads((path.parent / "train_log.json").read_text())
+    encoder = load_encoder(path)
+    assert all(np.isfinite(e["state_mse"]) for e in log)
+    assert torch.isfinite(encoder.state_mean).all() and torch.isfinite(encoder.state_std).all()
+    experts = [r for r in load_episodes(explore) if r.role != "explore"]
+    stage_target = state_loss(
+        torch.zeros(1, 9), torch.from_numpy(read_scene_state(experts[0])[:1]), encoder
+    )
+    assert torch.isfinite(stage_target)
+    errors = localization_errors(encoder, load_episodes(explore), every=2)
+    assert all(np.isfinite(v) for v in errors.values()), errors
 
 
 def test_encoder_resume_gives_the_same_weights(collection, tmp_path):
