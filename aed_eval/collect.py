@@ -177,6 +177,7 @@ class CollectConfig:
             "num_demos": counts.num_demos,
             "num_successes": counts.num_successes if base else 0,
             "num_failures": counts.num_failures if base else 0,
+            "num_explore": counts.num_explore if base else 0,
         }
         return cls(**{**preset, **overrides})
 

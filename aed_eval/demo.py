@@ -85,7 +85,7 @@ class DemoConfig(Protocol):
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
-        for name in ("encoder_epochs", "policy_epochs", "detector_epochs"):
+        for name in ("encoder_epochs", "policy_epochs", "detector_epochs", "num_explore"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 0")
         if self.train_envs + self.calibration_envs > sizes["base"]:
@@ -153,13 +153,15 @@ def collection(c: DemoConfig, split: str, **fields: Any) -> Any:
 
 
 def base_collections(c: DemoConfig) -> list[Any]:
-    """The training environments (with injected failures), then the calibration ones."""
+    """The training environments (with injected failures and exploration episodes), then the
+    calibration ones."""
     counts = {"num_demos": c.num_demos, "num_successes": c.num_successes}
+    training = {"num_failures": c.num_failures, "num_explore": c.num_explore}
     return [
+        collection(c, "base", envs=tuple(range(c.train_envs)), **training, **counts),
         collection(
-            c, "base", envs=tuple(range(c.train_envs)), num_failures=c.num_failures, **counts
+            c, "base", envs=c.calibration_env_indices, num_failures=0, num_explore=0, **counts
         ),
-        collection(c, "base", envs=c.calibration_env_indices, num_failures=0, **counts),
     ]
 
 

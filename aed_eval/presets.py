@@ -26,6 +26,8 @@ class Protocol:
         num_demos: demonstrations per environment (and given to the policy and detectors).
         num_successes: expert (agent) successes per base environment.
         num_failures: expert (agent) failures per training environment.
+        num_explore: exploration episodes per training environment (`aed collect
+            --num-explore`), for the scene encoder that the CPU-sized policies read.
         labelled: labelled expert successes and failures (each) per novel environment.
         rollouts: policy rollouts per novel environment.
         calibration_rollouts: policy rollouts per calibration environment.
@@ -38,6 +40,7 @@ class Protocol:
     num_demos: int
     num_successes: int
     num_failures: int
+    num_explore: int
     labelled: int
     rollouts: int
     calibration_rollouts: int
@@ -62,6 +65,7 @@ PROTOCOLS: dict[str, Protocol] = {
         num_demos=5,
         num_successes=20,
         num_failures=20,
+        num_explore=0,
         labelled=5,
         rollouts=20,
         calibration_rollouts=20,
@@ -74,6 +78,7 @@ PROTOCOLS: dict[str, Protocol] = {
         num_demos=5,
         num_successes=10,
         num_failures=10,
+        num_explore=12,
         labelled=1,
         rollouts=5,
         calibration_rollouts=5,
@@ -86,6 +91,7 @@ PROTOCOLS: dict[str, Protocol] = {
         num_demos=3,
         num_successes=4,
         num_failures=3,
+        num_explore=6,
         labelled=1,
         rollouts=4,
         calibration_rollouts=4,

@@ -328,6 +328,7 @@ def episodes(root: Path, policy_path: Path) -> dict[str, Any]:
             num_demos=1,
             num_successes=1,
             num_failures=1,
+            num_explore=0,  # the experts' episodes, as when the fingerprint was stored
             shard_size=1,
             obs_mode="state",
             out=state,

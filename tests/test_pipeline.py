@@ -40,6 +40,7 @@ def pipeline(tmp_path_factory) -> tuple[DemoConfig, Path]:
         num_demos=1,
         num_successes=2,
         num_failures=2,
+        num_explore=1,
         labelled=1,
         rollouts=2,
         calibration_rollouts=2,

@@ -97,6 +97,13 @@ def test_flags_override_the_preset_and_the_preset_follows_its_choosers():
         0,
         42,
     )
+    explore = [
+        parsed(
+            "collect", "--task", "PressButton", "--split", split, "--profile", profile
+        ).num_explore
+        for split, profile in (("base", "mini"), ("novel", "mini"), ("base", "paper"))
+    ]
+    assert explore == [12, 0, 0]  # the mini scene encoder's frames; the paper has no encoder
     demo = parsed("demo", "--profile", "demo", "--rollouts", "2")
     assert dataclasses.replace(DemoConfig.from_preset(), rollouts=2) == demo
 

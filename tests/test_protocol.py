@@ -117,6 +117,7 @@ def setting(tmp_path_factory) -> dict:
                 num_demos=1,
                 num_successes=0,
                 num_failures=0,
+                num_explore=0,
                 out=layout.data(TASK, split),
                 progress=False,
             )
