@@ -6,6 +6,7 @@ the error of always guessing the training mean (what a head that learned nothing
 
     python scripts/localization_probe.py --encoder runs/PressButton/encoder/encoder.pt \
         --data runs/PressButton/data/base --envs 23 24 25 26 --data runs/PressButton/data/novel
+    python scripts/localization_probe.py ... --roles agent_success demo --every 1000  # frame 0
 """
 
 from __future__ import annotations
@@ -33,8 +34,11 @@ class Config:
     """Collections to measure on (base and novel alike)."""
     envs: tuple[int, ...] = ()
     """Only these environment indices of base collections (default: every one)."""
+    roles: tuple[str, ...] = ()
+    """Only episodes of these roles (e.g. explore: the arm anywhere; default: every one)."""
     every: int = 4
-    """Every n-th frame of each episode."""
+    """Every n-th frame of each episode (one longer than the episodes: the first frame alone,
+    where the arm has not moved toward anything yet)."""
     out: Path | None = None
     """Also write the table as JSON here."""
 
@@ -47,6 +51,8 @@ def main(cfg: Config) -> dict[str, dict[str, float]]:
         episodes = load_episodes(root, split=None)
         if cfg.envs:
             episodes = [e for e in episodes if e.split != "base" or e.env_index in cfg.envs]
+        if cfg.roles:
+            episodes = [e for e in episodes if e.role in cfg.roles]
         seen = sorted({e.env_index for e in episodes if e.split == "base"} & trained)
         if seen:
             logger.warning("%s: environments %s are ones the encoder trained on", root, seen)

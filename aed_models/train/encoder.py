@@ -246,8 +246,8 @@ def localization_errors(
     mean_guess: bool = False,
 ) -> dict[str, float]:
     """Mean error of each predicted position (cm, per entity: `tcp`, `subgoal`, objects) and
-    joint (its units x 100) over every `every`-th frame of `episodes`. `mean_guess` scores the
-    training mean instead (what a head that learned nothing predicts)."""
+    joint (its units x 100) over every `every`-th frame of `episodes` where it is known.
+    `mean_guess` scores the training mean instead (what a head that learned nothing predicts)."""
     data = SceneFrames(episodes)
     names = encoder.config.state_names
     entities = dict.fromkeys(n.split(".")[0] for n in names)
@@ -264,4 +264,6 @@ def localization_errors(
         diff = (predicted - states).numpy()
         for name, cols in groups.items():
             errors[name].append(np.linalg.norm(diff[:, cols], axis=1))
-    return {name: float(np.nanmean(np.concatenate(e)) * 100) for name, e in errors.items()}
+    errors = {name: np.concatenate(e) for name, e in errors.items()}
+    # unknown entries (an exploration episode's stage target) are left out
+    return {n: float(np.nanmean(e) * 100) for n, e in errors.items() if np.isfinite(e).any()}

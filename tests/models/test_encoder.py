@@ -234,3 +234,8 @@ def test_localization_probe_reports_errors_beside_the_mean_guess(
         "button",
     }
     assert json.loads((tmp_path / "t.json").read_text()) == table
+    first = probe.main(
+        probe.Config(encoder=encoder_path, data=[collection], roles=("demo",), every=1000)
+    )
+    (row,) = first.values()
+    assert row["episodes"] == 2 * 3  # the demonstrations of the three environments, frame 0 each
