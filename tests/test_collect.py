@@ -331,6 +331,7 @@ def test_killed_rgbd_collection_resumed_by_two_workers_ends_with_the_same_frames
             num_demos=1,
             num_successes=1,
             num_failures=2,
+            num_explore=0,
             shard_size=2,
             out=out,
             workers=2,
