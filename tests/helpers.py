@@ -34,10 +34,13 @@ def recorded_episode(
     tcp_pose: np.ndarray,
     env_states: dict | None = None,
     onset: int | None = None,
+    split: str = "base",
+    sensor_param: dict | None = None,
 ) -> tuple[Any, Any]:
-    """A synthetic base-split episode as the collector records it: (T + 1) frames and TCP poses,
-    T actions, success at the last step, or (`onset` given) a `no_grasp` failure from `onset`
-    (role `explore`: an exploration episode)."""
+    """A synthetic episode as the collector records it: (T + 1) frames and TCP poses, T
+    actions, success at the last step, or (`onset` given) a `no_grasp` failure from `onset`
+    (role `explore`: an exploration episode); `sensor_param` the front camera's (T + 1)
+    intrinsic_cv / extrinsic_cv."""
     from aed_tasks import trajectory
     from aed_tasks.episode import Episode
 
@@ -46,9 +49,9 @@ def recorded_episode(
     if onset is not None:
         labels[onset:] = 1
     episode = Episode(
-        env_id=f"AED-{task}-base",
+        env_id=f"AED-{task}-{split}",
         task=task,
-        split="base",
+        split=split,
         env_index=env_index,
         seed=seed,
         demonstrator=role == "demo",
@@ -67,6 +70,7 @@ def recorded_episode(
             "sensor_data": {"front": {"rgb": rgb, "depth": depth}},
             "extra": {"tcp_pose": tcp_pose.astype(np.float32)},
             "agent": {"qpos": np.tile(np.float32([0.0] * 7 + [0.04, 0.04]), (steps + 1, 1))},
+            **({"sensor_param": {"front": sensor_param}} if sensor_param else {}),
         },
         env_states=env_states,
         terminated=np.zeros(steps, bool),
