@@ -247,13 +247,13 @@ def refined_pixel(logits: torch.Tensor) -> np.ndarray:
 @torch.no_grad()
 def locate(
     model: MatchingMap, demos: list[trajectory.EpisodeRef], cfg: Config, encoder=None
-) -> dict[str, list[float]]:
+) -> dict[str, list[np.ndarray]]:
     """Every `cfg.every`-th frame of each demonstration, located from the queries of the
-    environment's other demonstrations: horizontal errors (m) of the localizer and the
-    encoder."""
+    environment's other demonstrations: per demonstration, the horizontal errors (m) of the
+    localizer and the encoder."""
     model.eval()
     reader = EpisodeReader(CAMERA)
-    errors: dict[str, list[float]] = {"localizer": [], "encoder": []}
+    errors: dict[str, list[np.ndarray]] = {"localizer": [], "encoder": []}
     column = None
     if encoder is not None:
         column = encoder.config.state_names.index(f"{cfg.target}.x")
@@ -269,23 +269,52 @@ def locate(
             frames = read_frames(reader, info.ref, np.arange(0, info.ref.num_frames, cfg.every))
             maps = model(frames)
             others = queries[[k for k in range(len(infos)) if k != j]]
+            located = []
             for f in range(len(frames)):
                 logits = model.logits(maps[f : f + 1].expand(len(others), -1, -1, -1), others)
                 pixel = refined_pixel(logits.mean(0).view(maps.shape[-2:]))
                 v = int(np.clip(pixel[1], 0, frames.shape[-2] - 1))
                 u = int(np.clip(pixel[0], 0, frames.shape[-1] - 1))
                 depth_m = np.array([float(frames[f, 3, v, u]) * DEPTH_SCALE_MM / 1000.0])
-                point = unproject(pixel[None], depth_m, info.intrinsic, info.extrinsic)[0]
-                errors["localizer"].append(float(np.linalg.norm(point[:2] - info.target[:2])))
+                located.append(unproject(pixel[None], depth_m, info.intrinsic, info.extrinsic)[0])
+            errors["localizer"].append(
+                np.linalg.norm(np.array(located)[:, :2] - info.target[:2], axis=1)
+            )
             if encoder is not None:
                 predicted = encoder.predict_state(frames)[:, column : column + 2].numpy()
-                errors["encoder"] += np.linalg.norm(predicted - info.target[:2], axis=1).tolist()
+                errors["encoder"].append(np.linalg.norm(predicted - info.target[:2], axis=1))
         logger.info(
             "novel env %d: localizer errors (cm), median %.1f",
             env,
-            100 * np.median(errors["localizer"][start:]),
+            100 * np.median(np.concatenate(errors["localizer"][start:])),
         )
     return errors
+
+
+def summary(per_demo: list[np.ndarray], seed: int, draws: int = 1000) -> dict[str, object]:
+    """Mean, median and share within 3 cm of the errors (cm), with 95% bootstrap intervals
+    over demonstrations (a demonstration's frames resampled together)."""
+
+    def stats(arrays: list[np.ndarray]) -> np.ndarray:
+        e = np.concatenate(arrays)
+        return np.array([100 * e.mean(), 100 * np.median(e), (e < 0.03).mean()])
+
+    rng = np.random.default_rng(seed)
+    boot = np.array(
+        [stats([per_demo[i] for i in rng.integers(len(per_demo), size=len(per_demo))])
+         for _ in range(draws)]
+    )  # fmt: skip
+    low, high = np.percentile(boot, [2.5, 97.5], axis=0)
+    point = stats(per_demo)
+    return {
+        **{name: float(v) for name, v in zip(("mean", "median", "within_3cm"), point, strict=True)},
+        **{
+            f"{name}_95": [float(lo), float(hi)]
+            for name, lo, hi in zip(("mean", "median", "within_3cm"), low, high, strict=True)
+        },
+        "n": int(sum(len(e) for e in per_demo)),
+        "demonstrations": len(per_demo),
+    }
 
 
 def main(cfg: Config) -> dict:
@@ -322,7 +351,8 @@ def main(cfg: Config) -> dict:
     train_xy = np.array([episode_info(e, cfg.target).target[:2] for e in episodes])
     novel_xy = np.array([episode_info(e, cfg.target).target[:2] for e in novel])
     lengths = [len(range(0, e.num_frames, cfg.every)) for e in novel]
-    guess = np.repeat(np.linalg.norm(novel_xy - train_xy.mean(0), axis=1), lengths)
+    guesses = np.linalg.norm(novel_xy - train_xy.mean(0), axis=1)
+    errors["mean_guess"] = [np.full(n, g) for n, g in zip(lengths, guesses, strict=True)]
     window = max(1, len(losses) // 10)
     result = {
         "trained_with": trained,
@@ -332,14 +362,7 @@ def main(cfg: Config) -> dict:
             float(np.mean(losses[-window:])),
         ],
         "novel_demo_xy_error_cm": {
-            name: {
-                "mean": 100 * float(np.mean(e)),
-                "median": 100 * float(np.median(e)),
-                "within_3cm": float(np.mean(np.array(e) < 0.03)),
-                "n": len(e),
-            }
-            for name, e in {**errors, "mean_guess": list(guess)}.items()
-            if e
+            name: summary(per_demo, cfg.seed) for name, per_demo in errors.items() if per_demo
         },
     }
     print(json.dumps(result, indent=2))

@@ -126,6 +126,10 @@ def test_localizer_finds_an_unseen_colour_from_the_demonstrations(collections, t
     result = probe.main(config)
     errors = result["novel_demo_xy_error_cm"]
     assert errors["localizer"]["n"] == errors["mean_guess"]["n"] == 12
+    low, high = errors["localizer"]["mean_95"]
+    assert (
+        low <= errors["localizer"]["mean"] <= high and errors["localizer"]["demonstrations"] == 12
+    )
     first, last = result["loss_first_last_tenth"]
     assert last < 0.5 * first
     assert errors["localizer"]["mean"] < 0.5 * errors["mean_guess"]["mean"], errors
