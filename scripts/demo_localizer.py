@@ -156,20 +156,14 @@ def episode_info(ref: trajectory.EpisodeRef, target: str) -> EpisodeInfo:
     return EpisodeInfo(ref, position.astype(np.float64), pressed, intrinsic, extrinsic)
 
 
-def read_frames(reader: EpisodeReader, ref: trajectory.EpisodeRef, indices) -> torch.Tensor:
-    seq = reader.read(ref, np.asarray(indices))
-    return seq.frames
-
-
 class PairData:
     """Per base environment: query frames (first frames of expert episodes, with the pixel
     where the expert pressed) and target frames (any frame, with the pixel of the object's
     top: its position raised to the height where the environment's experts pressed it)."""
 
-    def __init__(self, episodes: list[trajectory.EpisodeRef], cfg: Config):
+    def __init__(self, infos: list[EpisodeInfo], cfg: Config):
         rng = np.random.default_rng(cfg.seed)
         reader = EpisodeReader(CAMERA)
-        infos = [episode_info(ref, cfg.target) for ref in episodes]
         heights: dict[int, list[float]] = {}
         for info in infos:
             if info.pressed is not None:
@@ -182,7 +176,7 @@ class PairData:
                 continue
             n = min(cfg.frames_per_episode, ref.num_frames)
             indices = np.concatenate([[0], rng.choice(np.arange(1, ref.num_frames), n - 1, False)])
-            frames = read_frames(reader, ref, indices).half()
+            frames = reader.read(ref, indices).frames.half()
             top = info.target.copy()
             top[2] = np.median(heights[ref.env_index])
             pixel = project(top[None], info.intrinsic, info.extrinsic)[0]
@@ -246,41 +240,35 @@ def refined_pixel(logits: torch.Tensor) -> np.ndarray:
 
 @torch.no_grad()
 def locate(
-    model: MatchingMap, demos: list[trajectory.EpisodeRef], cfg: Config, encoder=None
+    model: MatchingMap, demos: list[EpisodeInfo], every: int, encoder=None, target: str = ""
 ) -> dict[str, list[np.ndarray]]:
-    """Every `cfg.every`-th frame of each demonstration, located from the queries of the
-    environment's other demonstrations: per demonstration, the horizontal errors (m) of the
-    localizer and the encoder."""
+    """Every `every`-th frame of each demonstration, located from the environment's other
+    demonstrations (their mean query: the mean of their logits): per demonstration, the
+    horizontal errors (m) of the localizer and, given one, the encoder."""
     model.eval()
     reader = EpisodeReader(CAMERA)
     errors: dict[str, list[np.ndarray]] = {"localizer": [], "encoder": []}
-    column = None
-    if encoder is not None:
-        column = encoder.config.state_names.index(f"{cfg.target}.x")
-    for env in sorted({e.env_index for e in demos}):
-        infos = [episode_info(e, cfg.target) for e in demos if e.env_index == env]
-        firsts = torch.stack([read_frames(reader, i.ref, [0])[0] for i in infos])
-        presses = torch.tensor(
-            np.array([project(i.pressed[None], i.intrinsic, i.extrinsic)[0] for i in infos])
-        ).float()
-        queries = sample(model(firsts), presses)
+    for env in sorted({d.ref.env_index for d in demos}):
+        infos = [d for d in demos if d.ref.env_index == env]
+        firsts = torch.stack([reader.read(i.ref, np.array([0])).frames[0] for i in infos])
+        presses = np.array([project(i.pressed[None], i.intrinsic, i.extrinsic)[0] for i in infos])
+        queries = sample(model(firsts), torch.from_numpy(presses).float())
         start = len(errors["localizer"])
         for j, info in enumerate(infos):
-            frames = read_frames(reader, info.ref, np.arange(0, info.ref.num_frames, cfg.every))
+            frames = reader.read(info.ref, np.arange(0, info.ref.num_frames, every)).frames
             maps = model(frames)
-            others = queries[[k for k in range(len(infos)) if k != j]]
-            located = []
-            for f in range(len(frames)):
-                logits = model.logits(maps[f : f + 1].expand(len(others), -1, -1, -1), others)
-                pixel = refined_pixel(logits.mean(0).view(maps.shape[-2:]))
-                v = int(np.clip(pixel[1], 0, frames.shape[-2] - 1))
-                u = int(np.clip(pixel[0], 0, frames.shape[-1] - 1))
-                depth_m = np.array([float(frames[f, 3, v, u]) * DEPTH_SCALE_MM / 1000.0])
-                located.append(unproject(pixel[None], depth_m, info.intrinsic, info.extrinsic)[0])
-            errors["localizer"].append(
-                np.linalg.norm(np.array(located)[:, :2] - info.target[:2], axis=1)
+            query = torch.cat([queries[:j], queries[j + 1 :]]).mean(0)
+            logits = model.logits(maps, query.expand(len(frames), -1)).view(-1, *maps.shape[-2:])
+            pixels = np.array([refined_pixel(scores) for scores in logits])
+            v = np.clip(pixels[:, 1].astype(int), 0, frames.shape[-2] - 1)
+            u = np.clip(pixels[:, 0].astype(int), 0, frames.shape[-1] - 1)
+            depth_m = (
+                frames[np.arange(len(frames)), 3, v, u].double().numpy() * DEPTH_SCALE_MM / 1e3
             )
+            located = unproject(pixels, depth_m, info.intrinsic, info.extrinsic)
+            errors["localizer"].append(np.linalg.norm(located[:, :2] - info.target[:2], axis=1))
             if encoder is not None:
+                column = encoder.config.state_names.index(f"{target}.x")
                 predicted = encoder.predict_state(frames)[:, column : column + 2].numpy()
                 errors["encoder"].append(np.linalg.norm(predicted - info.target[:2], axis=1))
         logger.info(
@@ -324,13 +312,14 @@ def main(cfg: Config) -> dict:
     if cfg.envs:
         keep = sorted({e.env_index for e in episodes})[: cfg.envs]
         episodes = [e for e in episodes if e.env_index in keep]
+    infos = [episode_info(ref, cfg.target) for ref in episodes]
     model = MatchingMap()
     if cfg.checkpoint and cfg.checkpoint.is_file():
         saved = torch.load(cfg.checkpoint, weights_only=True)
         model.load_state_dict(saved["model"])
         losses, trained = saved["losses"], saved["config"]
     else:
-        data = PairData(episodes, cfg)
+        data = PairData(infos, cfg)
         logger.info(
             "%d environments, %d episodes read in %.0f s",
             len(data.envs),
@@ -346,11 +335,15 @@ def main(cfg: Config) -> dict:
                 {"model": model.state_dict(), "losses": losses, "config": trained}, cfg.checkpoint
             )
     encoder = load_encoder(cfg.encoder) if cfg.encoder else None
-    novel = [e for e in load_episodes(cfg.novel, split="novel") if e.role == "demo"]
-    errors = locate(model, novel, cfg, encoder)
-    train_xy = np.array([episode_info(e, cfg.target).target[:2] for e in episodes])
-    novel_xy = np.array([episode_info(e, cfg.target).target[:2] for e in novel])
-    lengths = [len(range(0, e.num_frames, cfg.every)) for e in novel]
+    novel = [
+        episode_info(ref, cfg.target)
+        for ref in load_episodes(cfg.novel, split="novel")
+        if ref.role == "demo"
+    ]
+    errors = locate(model, novel, cfg.every, encoder, cfg.target)
+    train_xy = np.array([i.target[:2] for i in infos])
+    novel_xy = np.array([i.target[:2] for i in novel])
+    lengths = [len(range(0, i.ref.num_frames, cfg.every)) for i in novel]
     guesses = np.linalg.norm(novel_xy - train_xy.mean(0), axis=1)
     errors["mean_guess"] = [np.full(n, g) for n, g in zip(lengths, guesses, strict=True)]
     window = max(1, len(losses) // 10)
