@@ -35,6 +35,7 @@ def _commands() -> dict[str, Callable[..., Any]]:
         "collect": collect.collect,
         "data-info": data_info.data_info,
         "train-encoder": train.train_encoder,
+        "train-localizer": train.train_localizer,
         "train-policy": train.train_policy,
         "train-detector": train.train_detector,
         "rollout": rollout.rollout,
@@ -59,6 +60,11 @@ def _preset_commands() -> dict[str, tuple[Callable[..., Any], tuple[str, ...], C
             collect.collect,
         ),
         "train-encoder": (train.encoder_preset, ("task", "profile"), train.train_encoder),
+        "train-localizer": (
+            train.localizer_preset,
+            ("task", "profile"),
+            train.train_localizer,
+        ),
         "train-policy": (train.policy_preset, ("task", "policy", "profile"), train.train_policy),
         "train-detector": (
             train.detector_preset,

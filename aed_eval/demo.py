@@ -1,7 +1,8 @@
 """`aed demo`: the whole AED protocol for one task, small enough for a 2-core CPU.
 
 Stages: collect the base split (training and held-out calibration environments); train the
-scene encoder when the policies read it, the policies, then the detectors; collect the novel
+scene encoder and the target localizer when the policies read them, the policies, then the
+detectors; collect the novel
 split's demonstrations and labelled expert episodes; roll every policy out in the novel and
 calibration environments; calibrate, evaluate, report. Each stage resumes what an earlier run
 finished. Every stage is built from one named preset (`--profile`, default `demo`), so that
@@ -41,6 +42,7 @@ class DemoConfig(Protocol):
         horizon: steps of every rollout (the task's evaluation horizon by default).
         detectors: detectors trained, calibrated and evaluated.
         encoder_epochs: override the scene encoder's training epochs (0: its recipe).
+        localizer_epochs: override the target localizer's training epochs (0: its recipe).
         policy_epochs: override every policy's training epochs (0: each one's recipe).
         detector_epochs: override every detector's training epochs (0: each one's recipe).
         alphas: false-alarm rates of the calibrated thresholds.
@@ -54,6 +56,7 @@ class DemoConfig(Protocol):
     horizon: int
     detectors: tuple[str, ...] = DETECTOR_NAMES
     encoder_epochs: int = 0
+    localizer_epochs: int = 0
     policy_epochs: int = 0
     detector_epochs: int = 0
     alphas: tuple[float, ...] = (0.1, 0.2)
@@ -85,7 +88,13 @@ class DemoConfig(Protocol):
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
-        for name in ("encoder_epochs", "policy_epochs", "detector_epochs", "num_explore"):
+        for name in (
+            "encoder_epochs",
+            "localizer_epochs",
+            "policy_epochs",
+            "detector_epochs",
+            "num_explore",
+        ):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 0")
         if self.train_envs + self.calibration_envs > sizes["base"]:
@@ -175,6 +184,21 @@ def encoder_trainings(c: DemoConfig) -> list[Any]:
     epochs = {"epochs": c.encoder_epochs} if c.encoder_epochs else {}
     return [
         TrainEncoderConfig.from_preset(
+            c.task, c.profile, runs=c.runs, num_envs=c.train_envs, seed=c.seed, **epochs
+        )
+    ]
+
+
+def localizer_trainings(c: DemoConfig) -> list[Any]:
+    """The target localizer, when a policy of the demo reads it."""
+    from aed_models.policies import POLICIES
+    from aed_models.train.localizer import TrainLocalizerConfig
+
+    if not any(POLICIES.preset(p, c.profile).localizer is not None for p in c.policies):
+        return []
+    epochs = {"epochs": c.localizer_epochs} if c.localizer_epochs else {}
+    return [
+        TrainLocalizerConfig.from_preset(
             c.task, c.profile, runs=c.runs, num_envs=c.train_envs, seed=c.seed, **epochs
         )
     ]
@@ -314,11 +338,13 @@ def plan_stages(c: DemoConfig) -> list[Stage]:
     from aed_eval.rollout import run_rollouts
     from aed_models.train.detector import train_detector
     from aed_models.train.encoder import train_encoder
+    from aed_models.train.localizer import train_localizer
     from aed_models.train.policy import train_policy
 
     stages = [
         ("collect base split", run_collection, base_collections(c)),
         ("train scene encoder", train_encoder, encoder_trainings(c)),
+        ("train target localizer", train_localizer, localizer_trainings(c)),
         ("train policies", train_policy, policy_trainings(c)),
         ("train detectors", train_detector, detector_trainings(c)),
         ("collect novel split", run_collection, novel_collections(c)),

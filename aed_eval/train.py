@@ -1,5 +1,6 @@
-"""`aed train-encoder`, `aed train-policy` and `aed train-detector`: phases 1 and 2 of the
-protocol (the scene encoder first, under mini: the policies' frozen visual head).
+"""`aed train-encoder`, `aed train-localizer`, `aed train-policy` and `aed train-detector`:
+phases 1 and 2 of the protocol (under mini, the scene encoder and the target localizer first:
+the policies' frozen visual head and where their targets are).
 
 Thin command-line faces of the training loops in `aed_models.train`; the loops themselves
 (CleanRL style, checkpointed every epoch, resumable) live beside the models.
@@ -16,6 +17,7 @@ from aed_eval.checks import task_class
 from aed_eval.presets import protocol
 from aed_models.train.detector import TrainDetectorConfig
 from aed_models.train.encoder import TrainEncoderConfig
+from aed_models.train.localizer import TrainLocalizerConfig
 from aed_models.train.policy import TrainPolicyConfig
 
 
@@ -30,6 +32,16 @@ def encoder_preset(
     """`aed train-encoder`'s defaults: the encoder's recipe, on the protocol's training
     environments."""
     return TrainEncoderConfig.from_preset(
+        task, profile, num_envs=training_envs(task, profile), **kw
+    )
+
+
+def localizer_preset(
+    task: str = "PressButton", profile: str = "mini", **kw: Any
+) -> TrainLocalizerConfig:
+    """`aed train-localizer`'s defaults: the localizer's recipe, on the protocol's training
+    environments."""
+    return TrainLocalizerConfig.from_preset(
         task, profile, num_envs=training_envs(task, profile), **kw
     )
 
@@ -97,4 +109,16 @@ def train_encoder(cfg: Annotated[TrainEncoderConfig, tyro.conf.arg(name="")]) ->
     path = run(cfg)
     seconds = time.perf_counter() - start
     print(f"{path}: scene encoder of {cfg.task} ({cfg.profile}) in {seconds:.0f} s")
+    return 0
+
+
+def train_localizer(cfg: Annotated[TrainLocalizerConfig, tyro.conf.arg(name="")]) -> int:
+    """Train the target localizer (what the mini policies read of where their targets are): a
+    matching map that finds, in a frame, where the demonstrations' stages ended (resumable)."""
+    from aed_models.train.localizer import train_localizer as run
+
+    start = time.perf_counter()
+    path = run(cfg)
+    seconds = time.perf_counter() - start
+    print(f"{path}: target localizer of {cfg.task} ({cfg.profile}) in {seconds:.0f} s")
     return 0

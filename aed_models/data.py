@@ -103,6 +103,23 @@ def stage_subgoals(tcp: np.ndarray, stage: np.ndarray) -> np.ndarray:
     return goals
 
 
+def stage_end_points(subgoal: torch.Tensor, num_stages: int) -> torch.Tensor:
+    """Per-frame stage targets (L, 3) of a successful episode (`stage_subgoals`) -> where its
+    first `num_stages` stages ended (num_stages, 3): the targets in order of appearance. The
+    last target is where the episode ends (its rest after the final stage), so an episode
+    must show `num_stages + 1` of them."""
+    subgoal = torch.as_tensor(subgoal)
+    change = torch.ones(len(subgoal), dtype=torch.bool)
+    change[1:] = (subgoal[1:] != subgoal[:-1]).any(-1)
+    points = subgoal[change]
+    if len(points) < num_stages + 1:
+        raise ValueError(
+            f"an episode completing {len(points) - 1} stages, {num_stages} needed "
+            "(is it a successful one?)"
+        )
+    return points[:num_stages]
+
+
 CLUTTER = re.compile(r"distractor_\d+$")  # the tasks' unrelated clutter (not task objects)
 ROBOTS = ("panda",)
 
@@ -161,6 +178,7 @@ class FrameSequence:
     proprio: torch.Tensor | None = None  # (L, PROPRIO_DIM) float32
     subgoal: torch.Tensor | None = None  # (L, 3) float32
     features: torch.Tensor | None = None  # (L, D) float32: a frozen visual head's, cached
+    located: torch.Tensor | None = None  # (L, 3K) float32: the localizer's points, repeated
 
     def __len__(self) -> int:
         return len(self.source)
@@ -264,9 +282,9 @@ def _read_rows(dataset: Any, rows: np.ndarray) -> np.ndarray:
 
 def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
     """Pad to the longest: frames (B, L, 4, H, W), labels (B, L), actions (B, L, A), lengths (B,),
-    mask (B, L), source (B, L) (each frame's index in its episode), and proprio (B, L, PROPRIO_DIM)
-    and subgoal (B, L, 3) when every sequence has them. Sequences read without images give their
-    cached `features` (B, L, D) instead of frames."""
+    mask (B, L), source (B, L) (each frame's index in its episode), and proprio
+    (B, L, PROPRIO_DIM), subgoal (B, L, 3) and located (B, L, 3K) when every sequence has them.
+    Sequences read without images give their cached `features` (B, L, D) instead of frames."""
     if not seqs:
         return {}
     lengths = torch.tensor([len(s) for s in seqs], dtype=torch.int64)
@@ -292,7 +310,7 @@ def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
             to_frames(s.rgb, s.depth, out=frames[i, : len(s)])
             frames[i, len(s) :] = 0.0
         batch["frames"] = frames
-    for key in ("features", "proprio", "subgoal"):
+    for key in ("features", "proprio", "subgoal", "located"):
         if all(getattr(s, key) is not None for s in seqs):
             batch[key] = torch.zeros(len(seqs), longest, getattr(seqs[0], key).shape[-1])
             for i, s in enumerate(seqs):
@@ -331,6 +349,8 @@ class EnvironmentIterations(Dataset):
         seed: root seed of the draws.
         features: per episode (keyed by `(str(path), traj)`), a frozen visual head's cached
             features (T + 1, D): sequences then carry them instead of images.
+        located: per agent episode (same keys), where a target localizer placed its stage
+            targets (K, 3): its sequences carry them at every frame (`located`).
     """
 
     def __init__(
@@ -344,6 +364,7 @@ class EnvironmentIterations(Dataset):
         seed: int = 0,
         rollout_frames: Literal["even", "random"] = "even",
         features: Mapping[tuple[str, str], np.ndarray] | None = None,
+        located: Mapping[tuple[str, str], np.ndarray] | None = None,
     ):
         if isinstance(composition, str):
             if composition not in COMPOSITIONS:
@@ -359,6 +380,7 @@ class EnvironmentIterations(Dataset):
         self.max_frames = max_frames
         self.seed = seed
         self.features = features
+        self.located = located
         self.reader = EpisodeReader(camera)
         self.pools = _group(episodes, demos)
         self.env_indices = sorted(self.pools)
@@ -437,9 +459,13 @@ class EnvironmentIterations(Dataset):
         else:
             indices = subsample(indices, self.max_frames)
         if self.features is None:
-            return self.reader.read(ref, indices)
-        seq = self.reader.read(ref, indices, images=False)
-        seq.features = torch.from_numpy(self.features[str(ref.path), ref.traj][indices])
+            seq = self.reader.read(ref, indices)
+        else:
+            seq = self.reader.read(ref, indices, images=False)
+            seq.features = torch.from_numpy(self.features[str(ref.path), ref.traj][indices])
+        if self.located is not None and ref.role != "demo":
+            points = torch.from_numpy(self.located[str(ref.path), ref.traj]).reshape(1, -1)
+            seq.located = points.float().expand(len(indices), -1).clone()
         return seq
 
 

@@ -3,6 +3,7 @@
 runs/<task>/data/<split>                       aed collect (base: training; novel: demonstrations)
 runs/<task>/data/<split>-labelled              labelled expert episodes of the novel split
 runs/<task>/encoder/encoder.pt                 aed train-encoder (the mini policies' frozen head)
+runs/<task>/localizer/localizer.pt             aed train-localizer (the mini policies' targets)
 runs/<task>/policies/<policy>/policy.pt        aed train-policy
 runs/<task>/detectors/<detector>[-<policy>]/   aed train-detector (detector.pt), aed calibrate
 runs/<task>/features/<policy sha256[:16]>/seed<s>-demos<n>/  frozen-policy features (PrObe, rnd_oe)
@@ -29,6 +30,9 @@ class RunLayout:
 
     def encoder(self, task: str) -> Path:
         return Path(self.root) / task / "encoder" / "encoder.pt"
+
+    def localizer(self, task: str) -> Path:
+        return Path(self.root) / task / "localizer" / "localizer.pt"
 
     def policy(self, task: str, policy: str) -> Path:
         return Path(self.root) / task / "policies" / policy / "policy.pt"

@@ -57,9 +57,14 @@ def sync(device: torch.device) -> None:
 def online_latency(policy, cfg: Config, device: torch.device) -> dict[int, float]:
     """Median step time (ms) at t = 10 and 200: per step the median over `repeats` rollouts
     (after a warm-up one), then the median over the steps t-5 .. t+5."""
+    half = cfg.demo_frames // 2  # two stage targets: one stage done halfway, then the rest
+    subgoal = torch.ones(5, cfg.demo_frames, 3, device=device)
+    subgoal[:, half:, :2] = 0.5
     demos = {
         "frames": torch.rand(5, cfg.demo_frames, 4, H, W, device=device),
+        "mask": torch.ones(5, cfg.demo_frames, dtype=torch.bool, device=device),
         "proprio": torch.rand(5, cfg.demo_frames, 5, device=device),
+        "subgoal": subgoal,
     }
     frames = torch.rand(cfg.steps, 4, H, W, device=device)
     proprio = torch.rand(cfg.steps, 5, device=device)
@@ -96,6 +101,9 @@ def training_rate(policy, cfg: Config, device: torch.device) -> float:
             "subgoal": torch.rand(10, n, 3, device=device),
         },
     }
+    if policy.localizer is not None:  # training reads the located points it cached
+        width = 3 * policy.localizer.config.num_targets
+        batch["rollouts"]["located"] = torch.rand(10, n, width, device=device)
     policy.train()
     rates = []
     for i in range(cfg.repeats + 1):

@@ -274,7 +274,10 @@ def tiny_policy_file(root: Path) -> Path:
 
     torch.manual_seed(0)
     config = POLICIES.preset(
-        "naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)
+        "naive_dc",
+        "mini",
+        visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
+        localizer=None,
     )
     path = root / "tiny_policy" / "policy.pt"
     path.parent.mkdir(parents=True)

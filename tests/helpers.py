@@ -36,11 +36,12 @@ def recorded_episode(
     onset: int | None = None,
     split: str = "base",
     sensor_param: dict | None = None,
+    stage: np.ndarray | None = None,
 ) -> tuple[Any, Any]:
     """A synthetic episode as the collector records it: (T + 1) frames and TCP poses, T
     actions, success at the last step, or (`onset` given) a `no_grasp` failure from `onset`
     (role `explore`: an exploration episode); `sensor_param` the front camera's (T + 1)
-    intrinsic_cv / extrinsic_cv."""
+    intrinsic_cv / extrinsic_cv; `stage` the per-step stages completed (default none)."""
     from aed_tasks import trajectory
     from aed_tasks.episode import Episode
 
@@ -59,7 +60,7 @@ def recorded_episode(
         actions=actions.astype(np.float32),
         success=(np.arange(steps) == steps - 1) & (onset is None),
         fail=np.zeros(steps, bool),
-        stage=np.zeros(steps, np.int16),
+        stage=np.zeros(steps, np.int16) if stage is None else np.asarray(stage, np.int16),
         error_label=labels,
         error_kind=None if onset is None else "no_grasp",
         error_onset=onset,

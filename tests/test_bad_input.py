@@ -39,6 +39,8 @@ CASES = {
     "policy lr nan": (["train-policy", "--policy", "naive_dc", "--lr", "nan"], "lr=nan"),
     "detector lr nan": (["train-detector", "--detector", "lstm_ed", "--lr", "nan"], "lr=nan"),
     "encoder lr nan": (["train-encoder", "--lr", "nan"], "lr=nan"),
+    "localizer colour 1": (["train-localizer", "--colour", "1"], "colour=1.0"),
+    "localizer without data": (["train-localizer"], "no such collection folder"),
     "monitor without demonstrations": (
         ["monitor", "--policy", "naive_dc", "--num-demos", "0"],
         "num_demos=0",
@@ -66,8 +68,8 @@ CASES = {
     ),
     "shard json that is a list": (["data-info", "{ws}/collection"], "not an AED trajectory json"),
 }
-TAKES_TASK = {"rollout", "train-policy", "train-detector", "train-encoder", "monitor", "evaluate",
-              "calibrate", "demo", "collect"}  # fmt: skip
+TAKES_TASK = {"rollout", "train-policy", "train-detector", "train-encoder", "train-localizer",
+              "monitor", "evaluate", "calibrate", "demo", "collect"}  # fmt: skip
 
 
 @pytest.mark.parametrize("case", sorted(CASES))

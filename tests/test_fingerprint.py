@@ -18,6 +18,10 @@ FROZEN = (
     "the mini policies' visual head is the task's scene encoder, frozen (aed train-encoder); "
     "they train on its cached features, which are not shifted (the encoder was)"
 )
+LOCALIZER = (
+    "the mini policies read where the demonstrations' stage targets are in the rollout's first "
+    "frame (the task's target localizer, aed train-localizer)"
+)
 # Changes made on purpose since the fingerprint was stored: (path, value then, value now, why).
 INTENDED = [
     *(
@@ -56,6 +60,16 @@ INTENDED = [
         for task in fingerprint.TASKS
     ),
     (("demo", "mini", "policy", 0, "shift"), 4, 0, FROZEN),
+    *(
+        (
+            ("recipes", f"model/{name}/{profile}", "localizer"),
+            ABSENT,
+            {"width": 32, "dim": 32, "num_targets": 1} if profile == "mini" else None,
+            LOCALIZER,
+        )
+        for name in ("naive_dc", "dct", "scan")
+        for profile in fingerprint.PROFILES
+    ),
 ]
 
 # Weights whose keys were renamed on purpose, values unchanged: (part, model, why); the model's

@@ -28,7 +28,10 @@ def env():
 def policy():
     torch.manual_seed(0)
     config = POLICIES.preset(
-        "scan", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)
+        "scan",
+        "mini",
+        visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
+        localizer=None,
     )
     return make_policy("scan", config).eval()
 

@@ -45,6 +45,7 @@ def pipeline(tmp_path_factory) -> tuple[DemoConfig, Path]:
         rollouts=2,
         calibration_rollouts=2,
         encoder_epochs=1,
+        localizer_epochs=1,
         policy_epochs=1,
         detector_epochs=1,
         horizon=30,
@@ -55,6 +56,7 @@ def pipeline(tmp_path_factory) -> tuple[DemoConfig, Path]:
     assert set(times) >= {
         "collect base split",
         "train scene encoder",
+        "train target localizer",
         "train policies",
         "train detectors",
         "evaluate",

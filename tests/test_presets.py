@@ -109,7 +109,7 @@ def test_flags_override_the_preset_and_the_preset_follows_its_choosers():
 
 
 @pytest.mark.parametrize(
-    "command", ["train-policy", "train-detector", "collect", "rollout", "demo"]
+    "command", ["train-policy", "train-detector", "train-localizer", "collect", "rollout", "demo"]
 )
 def test_help_shows_the_presets_numbers(command, capsys):
     with pytest.raises(SystemExit) as exit_:
@@ -126,6 +126,7 @@ def test_help_shows_the_presets_numbers(command, capsys):
             "--epochs INT",
             "(default: 5 10 10)",
         ),
+        "train-localizer": ("--updates INT", "(default: 250)", "(default: 32)"),
         "collect": ("--num-demos INT", "(default: 5)", "(default: 10)"),
         "rollout": ("--num-episodes INT", "(default: 5)", "(default: 200)"),
         "demo": ("--rollouts INT", "(default: 4)"),

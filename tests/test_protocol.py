@@ -96,7 +96,10 @@ def setting(tmp_path_factory) -> dict:
     policy = make_policy(
         "naive_dc",
         POLICIES.preset(
-            "naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)
+            "naive_dc",
+            "mini",
+            visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
+            localizer=None,
         ),
     )
     layout.policy(TASK, "naive_dc").parent.mkdir(parents=True)

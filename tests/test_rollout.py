@@ -29,7 +29,10 @@ def setting(tmp_path_factory) -> dict:
     """A tiny untrained NaiveDC checkpoint and one novel demonstration of environment 0."""
     root = tmp_path_factory.mktemp("rollout")
     config = POLICIES.preset(
-        "naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)
+        "naive_dc",
+        "mini",
+        visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
+        localizer=None,
     )
     checkpoint = root / "policy.pt"
     save_policy(checkpoint, make_policy("naive_dc", config).eval())

@@ -1,4 +1,5 @@
-"""`aed train-encoder`, `aed train-policy` and `aed train-detector` as commands: a `kill -9`
+"""`aed train-encoder`, `aed train-localizer`, `aed train-policy` and `aed train-detector` as
+commands: a `kill -9`
 mid-run, resumed, ends with the weights of an uninterrupted run; a crafted pickle is refused
 without running."""
 
@@ -20,7 +21,8 @@ from tests.helpers import write_synthetic_collection
 
 AED = str(Path(sys.executable).with_name("aed"))
 # Tiny runs of the mini models on synthetic episodes of 2 environments: 1 episode of each role
-# an iteration, 2 frames of each. The mini policies read a frozen scene encoder.
+# an iteration, 2 frames of each. The mini policies read a frozen scene encoder and a target
+# localizer.
 TRAININGS = {
     "policy": (
         ["train-policy", "--policy", "naive_dc", "--composition", "1", "1", "--epochs", "20"],
@@ -43,9 +45,9 @@ def collection(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def scenes(tmp_path_factory) -> Path:
-    """Press Button with env states (what the scene encoder learns): per environment 2 demos and
-    2 successes."""
-    from tests.models.test_encoder import synthetic
+    """Press Button with env states (what the scene encoder learns), stages and a camera (what
+    the localizer matches): per environment 2 demos and 2 successes."""
+    from tests.models.test_localizer import synthetic
 
     return write_synthetic_collection(
         tmp_path_factory.mktemp("scenes"),
@@ -71,6 +73,22 @@ def encoder(scenes, tmp_path_factory) -> Path:
     return out / "encoder.pt"
 
 
+@pytest.fixture(scope="module")
+def localizer(scenes, tmp_path_factory) -> Path:
+    """`aed train-localizer` for one epoch of a few updates."""
+    out = tmp_path_factory.mktemp("localizer")
+    args = ["--task", "PressButton", "--data", str(scenes), "--num-envs", "0", "--epochs", "1"]
+    result = subprocess.run(
+        [AED, "train-localizer", *args, "--updates", "3", "--batch", "4", "--no-progress"]
+        + ["--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr
+    return out / "localizer.pt"
+
+
 @pytest.fixture
 def command(request, collection) -> Callable[[str, Path], list[str]]:
     """The command line of a tiny training (`which`) into `out`."""
@@ -86,6 +104,8 @@ def command(request, collection) -> Callable[[str, Path], list[str]]:
                 str(request.getfixturevalue("scenes")),
                 "--encoder",
                 str(encoder),
+                "--localizer",
+                str(request.getfixturevalue("localizer")),
             ]
         else:
             data = ["--task", "PickPlace", "--data", str(collection)]

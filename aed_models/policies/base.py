@@ -12,6 +12,10 @@ Subclasses supply the task-embedding network through four hooks:
 - `init_state(memory)` and `step(f_t, memory, state) -> (history_t, task_t, state)`: the
   same computation one frame at a time, with per-frame results cached in `state`.
 
+A policy with a target localizer (`config.localizer`, under `mini`) also locates, in the
+rollout's first frame, where each of the demonstrations' stages ended, and its actor reads the
+offsets from the TCP to those points beside [f_h, f_zeta]; detectors read f_h and f_zeta only.
+
 Actions are learned standardised (the expert's per-axis std is ~0.1: raw, the MSE sits at
 the variance and nothing is learned); `act` de-standardises, clips to [-1, 1] and turns the
 gripper logit into +1 (open) / -1 (closed).
@@ -28,7 +32,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from aed_models.data import PROPRIO_DIM, proprio_from_obs, subsample, to_frames
+from aed_models.data import (
+    PROPRIO_DIM,
+    proprio_from_obs,
+    stage_end_points,
+    subsample,
+    to_frames,
+)
 from aed_models.nn.batch import check_sequences
 from aed_models.nn.encoders import build_visual_head, encode_frames
 from aed_models.nn.mlp import mlp
@@ -117,11 +127,20 @@ class DCPolicy(nn.Module):
         self.proprio_embed = (
             nn.Linear(PROPRIO_DIM, config.visual.out_dim) if config.proprio else None
         )
+        self.localizer = None
+        located_dim = 0
+        if config.localizer is not None:
+            from aed_models.localizer.modeling_localizer import TargetLocalizer
+
+            self.localizer = TargetLocalizer(config.localizer)
+            located_dim = 3 * config.localizer.num_targets
         self.subgoal_head = (
-            nn.Linear(history_dim + task_dim, 3) if config.subgoal_weight > 0 else None
+            nn.Linear(history_dim + task_dim + located_dim, 3)
+            if config.subgoal_weight > 0
+            else None
         )
         self.actor = Actor(
-            history_dim + task_dim + (3 if self.subgoal_head is not None else 0),
+            history_dim + task_dim + located_dim + (3 if self.subgoal_head is not None else 0),
             config.actor_hidden,
         )
         self.inverse_dynamics = None
@@ -193,6 +212,55 @@ class DCPolicy(nn.Module):
         history, task = self.sequence(f, mask, memory)
         return f, PolicyFeatures(history, task)
 
+    # -- target localizer ------------------------------------------------------------------
+    def demo_queries(self, demos: dict) -> torch.Tensor:
+        """The localizer's K queries (K, D) from the demonstrations' first frames and where
+        each ended its stages (their `subgoal` targets, unthinned)."""
+        frames, mask = demos.get("frames"), demos.get("mask")
+        if frames is None or frames.dim() != 5 or demos.get("subgoal") is None:
+            raise ValueError(
+                "demos: this policy locates its targets from the demonstrations' first frames "
+                "and stage targets; expected demos['frames'] (N, L, 4, H, W) and "
+                "demos['subgoal'] (N, L, 3)"
+            )
+        k = self.localizer.config.num_targets
+        lengths = mask.sum(1).tolist()
+        points = torch.stack(
+            [stage_end_points(demos["subgoal"][i, :n].cpu(), k) for i, n in enumerate(lengths)]
+        ).to(frames.device)
+        return self.localizer.queries(frames[:, 0].float(), points)
+
+    def located_offsets(self, located: torch.Tensor, proprio: torch.Tensor) -> torch.Tensor:
+        """World points (..., 3K) and proprio (..., 5) -> the offsets from the TCP to each
+        point (..., 3K), in units of `SUBGOAL_SCALE_M`."""
+        tcp = proprio[..., :3]
+        points = located.unflatten(-1, (-1, 3))
+        return ((points - tcp[..., None, :]) / SUBGOAL_SCALE_M).flatten(-2)
+
+    def _rollout_located(self, rollouts: dict, demos: dict) -> torch.Tensor | None:
+        """(B, T, 3K) located points of each rollout: given (`rollouts['located']`, cached
+        for training), or located in each rollout's first frame."""
+        if self.localizer is None:
+            return None
+        _, mask = check_sequences(rollouts, "rollouts")
+        located = rollouts.get("located")
+        if located is None:
+            frames = rollouts.get("frames")
+            if frames is None or frames.dim() != 5:
+                raise ValueError(
+                    "rollouts: this policy locates its targets in the first frame; give "
+                    "rollouts['frames'] (B, T, 4, H, W) or rollouts['located'] (B, T, 3K)"
+                )
+            points = self.localizer.locate(frames[:, 0], self.demo_queries(demos))
+            located = points.flatten(1)[:, None].expand(-1, mask.shape[1], -1)
+        width = 3 * self.localizer.config.num_targets
+        if tuple(located.shape) != (*mask.shape, width):
+            raise ValueError(
+                f"rollouts['located'] of shape {tuple(located.shape)}: expected "
+                f"{(*mask.shape, width)}"
+            )
+        return located.float()
+
     def demo_inputs(self, demos: dict) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """The demonstrations' frames, mask and proprio (or None), thinned to
         `config.demo_frames`."""
@@ -233,18 +301,24 @@ class DCPolicy(nn.Module):
         """rollouts (B, T, ...) conditioned on the N demos they share -> standardised pos (B, T, 3),
         gripper logit (B, T, 1), history / task features and the per-frame features."""
         f, feats = self._features(rollouts, demos)
-        pos, grip, subgoal = self._actor(feats.history, feats.task)
+        located = self._rollout_located(rollouts, demos)
+        offsets = None
+        if located is not None:
+            offsets = self.located_offsets(located, rollouts["proprio"].to(located.device))
+        pos, grip, subgoal = self._actor(feats.history, feats.task, offsets)
         out = {"pos": pos, "grip": grip, "history": feats.history, "task": feats.task, "visual": f}
         if subgoal is not None:
             out["subgoal"] = subgoal
         return out
 
     def _actor(
-        self, history: torch.Tensor, task: torch.Tensor
+        self, history: torch.Tensor, task: torch.Tensor, located: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """[f_h, f_zeta] -> (pos, gripper, subgoal offset or None). With a subgoal head, the actor
-        also reads the predicted offset: moving toward a target it was told is an easy map."""
-        actor_input = torch.cat([history, task], dim=-1)
+        """[f_h, f_zeta (, located offsets)] -> (pos, gripper, subgoal offset or None). With a
+        subgoal head, the actor also reads the predicted offset: moving toward a target it was
+        told is an easy map."""
+        parts = [history, task] if located is None else [history, task, located]
+        actor_input = torch.cat(parts, dim=-1)
         if self.subgoal_head is None:
             return (*self.actor(actor_input), None)
         subgoal = self.subgoal_head(actor_input)
@@ -336,7 +410,13 @@ class DCPolicy(nn.Module):
                 "t": 0,
                 "history": None,
                 "task": None,
+                "queries": None,
+                "located": None,
             }
+            if self.localizer is not None:
+                self._online["queries"] = self.demo_queries(
+                    {k: v.to(device) for k, v in demos.items() if isinstance(v, torch.Tensor)}
+                )
 
     def act(self, obs: Any, proprio: Any = None) -> np.ndarray:
         """One step: a ManiSkill rgbd observation dict, or a (4, H, W) frame (plus its (5,)
@@ -359,7 +439,14 @@ class DCPolicy(nn.Module):
             history, task, self._online["state"] = self.step(
                 f_t, self._online["memory"], self._online["state"]
             )
-            pos, grip, _ = self._actor(history, task)
+            offsets = None
+            if self.localizer is not None:
+                if self._online["located"] is None:  # the rollout's first frame
+                    self._online["located"] = self.localizer.locate(
+                        frame[None], self._online["queries"]
+                    ).flatten(1)
+                offsets = self.located_offsets(self._online["located"], proprio)
+            pos, grip, _ = self._actor(history, task, offsets)
             action = self.to_action(pos, grip)[0]
         self._online.update(history=history[0], task=task[0], t=self._online["t"] + 1)
         return action.cpu().numpy().astype(np.float32)

@@ -6,6 +6,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal, TypeVar
 
+from aed_models.localizer.configuration_localizer import LocalizerConfig
 from aed_models.nn.config import VisualHeadConfig
 from aed_models.recipe import COMPOSITIONS, PolicyRecipe, check_profile, optimiser, paper_epochs
 
@@ -36,6 +37,11 @@ class PolicyConfig:
         frozen_encoder: the visual head is the task's scene encoder (`aed train-encoder`, trained
             to say where things are), frozen; training reads its cached per-frame features. The
             paper trains its heads end to end (off under `paper`, on under `mini`).
+        localizer: a frozen demonstration-conditioned target localizer (`aed train-localizer`):
+            at a rollout's first frame it places each stage's target where the demonstrations
+            show it, and the actor (and the stage-target head) read the offsets from the TCP to
+            those points. None under `paper` (the paper's policies act from RGB-D alone); on
+            under `mini`, where the scene encoder alone did not find novel objects.
         demo_frames: encode at most this many frames of each demonstration, evenly spread
             (first and last kept), in training and online alike; 0 = every frame. It bounds the
             cost of DCT's and SCAN's demonstration memory (NaiveDC reads only the ends).
@@ -56,10 +62,13 @@ class PolicyConfig:
     demo_frames: int = 0
     subgoal_weight: float = 0.0
     frozen_encoder: bool = False
+    localizer: LocalizerConfig | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.visual, dict):
             self.visual = VisualHeadConfig(**self.visual)
+        if isinstance(self.localizer, dict):
+            self.localizer = LocalizerConfig.from_dict(self.localizer)
         if not isinstance(self.visual, VisualHeadConfig):
             raise ValueError(f"visual={self.visual!r}: must be a VisualHeadConfig")
         self.actor_hidden = tuple(int(h) for h in self.actor_hidden)
@@ -76,6 +85,10 @@ class PolicyConfig:
                 "subgoal_weight > 0 needs proprio=True "
                 "(the offset is from the TCP the policy reads)"
             )
+        if self.localizer is not None and not self.proprio:
+            raise ValueError(
+                "localizer needs proprio=True (the policy reads the offsets from the TCP)"
+            )
         if self.demo_frames < 0 or self.demo_frames == 1:
             raise ValueError(f"demo_frames={self.demo_frames}: 0 (all) or >= 2")
         if self.grip_loss not in ("bce", "mse"):
@@ -85,11 +98,17 @@ class PolicyConfig:
     def preset(cls: type[C], profile: str) -> C:
         """The sizes of a profile: `paper` the paper's (ResNet18 head, RGB-D only); `mini` and
         `demo` CPU-sized (the task's frozen scene encoder as the visual head, proprioception, a
-        stage-target head)."""
+        stage-target head, the task's target localizer)."""
         if check_profile(profile) == "paper":
             return cls(visual=VisualHeadConfig(arch="resnet18", out_dim=256, dropout=0.5))
         small = VisualHeadConfig(arch="small_cnn", out_dim=256, dropout=0.0, width=32)
-        return cls(visual=small, proprio=True, subgoal_weight=1.0, frozen_encoder=True)
+        return cls(
+            visual=small,
+            proprio=True,
+            subgoal_weight=1.0,
+            frozen_encoder=True,
+            localizer=LocalizerConfig.preset(profile),
+        )
 
     @classmethod
     def recipe(cls, profile: str, task: str) -> PolicyRecipe:

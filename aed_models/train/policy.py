@@ -41,6 +41,7 @@ from aed_models.train.common import (
     trained_on,
 )
 from aed_models.train.frame_features import frame_features
+from aed_models.train.localizer import located_points
 from aed_tasks.locks import locks_out_folder
 
 logger = logging.getLogger(__name__)
@@ -66,6 +67,7 @@ class TrainPolicyConfig(PolicyRecipe):
         device: torch device.
         workers: DataLoader worker processes (0 = read in the main process).
         encoder: the scene encoder checkpoint a `frozen_encoder` policy starts from.
+        localizer: the target localizer checkpoint a policy with a `localizer` reads, frozen.
     """
 
     task: str
@@ -80,6 +82,7 @@ class TrainPolicyConfig(PolicyRecipe):
     device: str = "cpu"
     workers: int = 0
     encoder: Path = Path("runs/PressButton/encoder/encoder.pt")
+    localizer: Path = Path("runs/PressButton/localizer/localizer.pt")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -87,7 +90,8 @@ class TrainPolicyConfig(PolicyRecipe):
         check_profile(self.profile)
         if self.num_envs < 0 or self.workers < 0:
             raise ValueError(f"num_envs={self.num_envs}, workers={self.workers}: must be >= 0")
-        self.data, self.out, self.encoder = Path(self.data), Path(self.out), Path(self.encoder)
+        self.data, self.out = Path(self.data), Path(self.out)
+        self.encoder, self.localizer = Path(self.encoder), Path(self.localizer)
 
     @classmethod
     def from_preset(
@@ -109,6 +113,7 @@ class TrainPolicyConfig(PolicyRecipe):
             "data": layout.data(task, "base"),
             "out": layout.policy(task, policy).parent,
             "encoder": layout.encoder(task),
+            "localizer": layout.localizer(task),
         }
         return cls(**{**preset, **overrides})
 
@@ -183,6 +188,20 @@ def freeze_encoder(policy: torch.nn.Module, path: Path) -> str:
     return encoder.sha256
 
 
+def load_frozen_localizer(path: Path):
+    """The target localizer a policy reads (frozen), or a one-line error naming the command."""
+    from aed_models.localizer import load_localizer
+
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"{path}: no target localizer (this policy reads where the demonstrations' stage "
+            "targets are); train it first with `aed train-localizer`"
+        )
+    localizer = load_localizer(path)
+    localizer.requires_grad_(False)
+    return localizer
+
+
 @locks_out_folder  # one training per out folder (aed_tasks.locks)
 def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None) -> Path:
     """Train, checkpointing every epoch; returns the final checkpoint `<out>/policy.pt`.
@@ -199,7 +218,15 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
 
     # model, with the scene encoder as its frozen visual head when the config says so
     policy_cfg = policy_cfg or POLICIES.preset(cfg.policy, cfg.profile)
+    localizer, located = None, None
+    if policy_cfg.localizer is not None:  # its size and stage count are the checkpoint's
+        localizer = load_frozen_localizer(cfg.localizer)
+        policy_cfg = dataclasses.replace(policy_cfg, localizer=localizer.config)
     policy = make_policy(cfg.policy, policy_cfg).to(device)
+    if localizer is not None:
+        policy.localizer.load_state_dict(localizer.state_dict())
+        policy.localizer.requires_grad_(False)
+        located = located_points(localizer, episodes, num_demos=cfg.composition[0])
     features, encoder_sha = None, None
     if policy_cfg.frozen_encoder:
         encoder_sha = freeze_encoder(policy, cfg.encoder)
@@ -221,6 +248,7 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
             "train_config": config_record(cfg),
             "data_key": data_key(episodes),
             "encoder_sha256": encoder_sha,
+            "localizer_sha256": None if localizer is None else localizer.sha256,
             **trained_on(episodes),
         },
     )
@@ -232,6 +260,7 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
         seed=cfg.seed,
         rollout_frames=cfg.rollout_frames,
         features=features,
+        located=located,
     )
     logger.info(
         "%s on %s: %d environments, %d episodes", cfg.policy, cfg.data, len(dataset), len(episodes)
@@ -241,6 +270,8 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
     def same(ckpt: Checkpoint) -> str | None:
         if ckpt.extra.get("encoder_sha256") != encoder_sha:
             return f"trained on another scene encoder than {cfg.encoder}"
+        if ckpt.extra.get("localizer_sha256") != (localizer and localizer.sha256):
+            return f"trained with another target localizer than {cfg.localizer}"
         if ckpt.config != policy.config.to_dict():
             return f"trained with another {cfg.policy} config ({ckpt.config})"
         return None

@@ -409,7 +409,10 @@ def tiny_policy(tmp_path_factory):
 
     torch.manual_seed(0)
     config = POLICIES.preset(
-        "naive_dc", "mini", visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4)
+        "naive_dc",
+        "mini",
+        visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
+        localizer=None,
     )
     path = tmp_path_factory.mktemp("policy") / "policy.pt"
     save_policy(path, make_policy("naive_dc", config).eval())

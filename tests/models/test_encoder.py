@@ -184,6 +184,7 @@ def test_policies_train_on_a_frozen_encoder(name, encoder_path, collection, tmp_
         visual=TINY_VISUAL,
         actor_hidden=(16, 8),
         frozen_encoder=True,
+        localizer=None,
         **tiny.get(name, {}),
     )
     cfg = TrainPolicyConfig.from_preset(

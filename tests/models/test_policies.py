@@ -27,10 +27,17 @@ TINY = {
 
 
 def tiny_config(name: str, profile: str = "mini"):
-    """End to end (the paper's way); tests/models/test_encoder.py trains on a frozen encoder."""
+    """End to end (the paper's way), without the target localizer (tests/models/test_encoder.py
+    trains on a frozen encoder, tests/models/test_localizer.py reads a localizer)."""
     visual = VisualHeadConfig(arch="small_cnn", out_dim=16, width=4, dropout=0.5)
     return POLICIES.preset(
-        name, profile, visual=visual, actor_hidden=(16, 8), frozen_encoder=False, **TINY[name]
+        name,
+        profile,
+        visual=visual,
+        actor_hidden=(16, 8),
+        frozen_encoder=False,
+        localizer=None,
+        **TINY[name],
     )
 
 
@@ -409,6 +416,8 @@ def test_stage_subgoals_are_where_each_stage_ends():
     assert stage_subgoals(tcp[:1], np.array([], dtype=np.int16))[:, 0].tolist() == [0]
     with pytest.raises(ValueError, match="subgoal_weight"):
         POLICIES.preset("naive_dc", "mini", proprio=False, subgoal_weight=1.0)
+    with pytest.raises(ValueError, match="localizer needs proprio"):
+        POLICIES.preset("naive_dc", "mini", proprio=False, subgoal_weight=0.0)
 
 
 def test_diagnostic_scripts_run_on_a_collection(collection):

@@ -1,0 +1,90 @@
+"""Configuration of the demonstration-conditioned target localizer (torch-free)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from aed_models.recipe import Recipe, check_profile
+
+
+@dataclass
+class LocalizerConfig:
+    """A fully convolutional matching map and how many stage targets it locates.
+
+    Args:
+        width: channels of its first convs (later ones double it).
+        dim: size of its unit feature vectors, one per 8 x 8 pixel cell.
+        num_targets: stage targets located per episode (the task's stages; set from the
+            data when training starts).
+    """
+
+    width: int = 32
+    dim: int = 32
+    num_targets: int = 1
+
+    def __post_init__(self) -> None:
+        for name in ("width", "dim", "num_targets"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
+        if self.width % 8:
+            raise ValueError(f"width={self.width}: must be a multiple of 8 (GroupNorm of 8)")
+
+    @classmethod
+    def preset(cls, profile: str) -> LocalizerConfig:
+        check_profile(profile)
+        return cls()
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> LocalizerConfig:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"LocalizerConfig: unknown fields {unknown}; known {sorted(known)}")
+        return cls(**data)
+
+
+@dataclass
+class LocalizerRecipe(Recipe):
+    """Matching of stage targets across episodes of one environment, by Adam.
+
+    An epoch is `updates` updates of `batch` (query, target) pairs; `max_frames` frames are
+    read per episode (its first, then random ones before its first stage ends).
+
+    Args:
+        updates: updates per epoch (the unit of checkpoints and resume).
+        batch: query / target pairs per update.
+        colour: strength of the recolouring a query and its target share (0: off).
+    """
+
+    updates: int
+    batch: int
+    colour: float
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.updates < 1 or self.batch < 1:
+            raise ValueError(f"updates={self.updates}, batch={self.batch}: both must be >= 1")
+        if not (math.isfinite(self.colour) and 0 <= self.colour < 1):
+            raise ValueError(f"colour={self.colour}: must lie in [0, 1)")
+
+    @classmethod
+    def preset(cls, profile: str) -> LocalizerRecipe:
+        """mini: 8 epochs of 250 updates of 32 pairs; demo: 4 epochs of 50."""
+        if check_profile(profile) == "paper":
+            raise ValueError("profile='paper': the paper's policies have no localizer")
+        demo = profile == "demo"
+        return cls(
+            epochs=4 if demo else 8,
+            lr=1e-3,
+            weight_decay=0.0,
+            max_frames=6,
+            updates=50 if demo else 250,
+            batch=32,
+            colour=0.3,
+        )

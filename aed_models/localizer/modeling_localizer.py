@@ -1,0 +1,145 @@
+"""The matching map and the localizer built on it: queries from demonstrations, points in frames."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from aed_models.data import DEPTH_SCALE_MM
+from aed_models.localizer.configuration_localizer import LocalizerConfig
+
+STRIDE = 8  # a feature cell, in pixels
+
+
+class MatchingMap(nn.Module):
+    """(N, 4, H, W) -> (N, dim, H / 8, W / 8) unit feature vectors, one per cell."""
+
+    def __init__(self, width: int, dim: int):
+        super().__init__()
+        layers, channels = [], 4
+        for w, stride in ((width, 2), (width, 2), (2 * width, 1), (2 * width, 2)):
+            layers += [nn.Conv2d(channels, w, 3, stride, 1), nn.GroupNorm(8, w), nn.ReLU()]
+            channels = w
+        layers += [nn.Conv2d(channels, 2 * width, 3, 1, 2, dilation=2), nn.ReLU()]
+        self.body = nn.Sequential(*layers, nn.Conv2d(2 * width, dim, 1))
+        self.log_scale = nn.Parameter(torch.tensor(2.3))  # logits = cosine similarity x ~10
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        return F.normalize(self.body(frames), dim=1)
+
+    def logits(self, maps: torch.Tensor, queries: torch.Tensor) -> torch.Tensor:
+        """maps (N, D, h, w) and one query each (N, D) -> (N, h * w)."""
+        return torch.einsum("ndhw,nd->nhw", maps, queries).flatten(1) * self.log_scale.exp()
+
+
+def sample(maps: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
+    """The unit feature (N, D) of each map (N, D, h, w) at its pixel (N, 2) = (u, v), bilinear."""
+    h, w = maps.shape[-2:]
+    cells = (pixels + 0.5) / STRIDE - 0.5
+    grid = torch.stack(
+        [2 * cells[:, 0] / max(w - 1, 1) - 1, 2 * cells[:, 1] / max(h - 1, 1) - 1], dim=-1
+    )
+    out = F.grid_sample(maps, grid[:, None, None].to(maps.dtype), align_corners=True)
+    return F.normalize(out[:, :, 0, 0], dim=1)
+
+
+def target_cells(pixels: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """The flat index of the cell (N,) holding each pixel (N, 2)."""
+    col = (pixels[:, 0] / STRIDE).floor().clamp(0, w - 1)
+    row = (pixels[:, 1] / STRIDE).floor().clamp(0, h - 1)
+    return (row * w + col).long()
+
+
+def refined_pixels(logits: torch.Tensor) -> torch.Tensor:
+    """(..., h, w) score maps -> (..., 2) pixels (u, v): the best cell, refined to the
+    softmax-weighted mean of the cell centres in the 3 x 3 cells around it."""
+    h, w = logits.shape[-2:]
+    flat = logits.flatten(-2)
+    best = flat.argmax(-1, keepdim=True)
+    rows = torch.arange(h, device=logits.device).repeat_interleave(w)
+    cols = torch.arange(w, device=logits.device).repeat(h)
+    near = ((rows - rows[best]).abs() <= 1) & ((cols - cols[best]).abs() <= 1)
+    weights = torch.softmax(flat.masked_fill(~near, float("-inf")), dim=-1)
+    v = (weights * rows.to(weights.dtype)).sum(-1)
+    u = (weights * cols.to(weights.dtype)).sum(-1)
+    return (torch.stack([u, v], dim=-1) + 0.5) * STRIDE
+
+
+def colour_jitter(
+    frames: torch.Tensor, strength: float, generator: torch.Generator
+) -> torch.Tensor:
+    """Recolour each sequence (B, L, 4, H, W) once: RGB channels in a random order, each scaled
+    by a gain in [1 - strength, 1 + strength], one sequence in five grey; depth as it is. A
+    query and its target share a sequence, so an object keeps one look, which need not be one
+    the training split shows."""
+    if strength == 0:
+        return frames
+    b = frames.shape[0]
+    order = torch.stack([torch.randperm(3, generator=generator) for _ in range(b)])
+    gains = 1.0 + strength * (2.0 * torch.rand(b, 3, generator=generator) - 1.0)
+    grey = torch.rand(b, generator=generator) < 0.2
+    rows = torch.arange(b)[:, None]
+    rgb = frames[:, :, :3].transpose(1, 2)[rows, order].transpose(1, 2)
+    rgb = rgb * gains.view(b, 1, 3, 1, 1)
+    rgb = torch.where(grey.view(b, 1, 1, 1, 1), rgb.mean(dim=2, keepdim=True).expand_as(rgb), rgb)
+    return torch.cat([rgb.clamp(0.0, 1.0), frames[:, :, 3:]], dim=2)
+
+
+class TargetLocalizer(nn.Module):
+    """The matching map and the fixed camera it works through (OpenCV intrinsics and
+    world-to-camera extrinsics, buffers set from the training data)."""
+
+    def __init__(self, config: LocalizerConfig):
+        super().__init__()
+        self.config = config
+        self.map = MatchingMap(config.width, config.dim)
+        self.register_buffer("intrinsic", torch.eye(3, dtype=torch.float64))
+        self.register_buffer("extrinsic", torch.eye(3, 4, dtype=torch.float64))
+        self.sha256 = ""
+
+    def set_camera(self, intrinsic: torch.Tensor, extrinsic: torch.Tensor) -> None:
+        self.intrinsic.copy_(torch.as_tensor(intrinsic, dtype=torch.float64).reshape(3, 3))
+        self.extrinsic.copy_(torch.as_tensor(extrinsic, dtype=torch.float64).reshape(3, 4))
+
+    def project(self, points: torch.Tensor) -> torch.Tensor:
+        """World points (..., 3) -> pixels (..., 2)."""
+        cam = points.double() @ self.extrinsic[:, :3].T + self.extrinsic[:, 3]
+        uvw = cam @ self.intrinsic.T
+        return (uvw[..., :2] / uvw[..., 2:]).float()
+
+    def unproject(self, pixels: torch.Tensor, depth_m: torch.Tensor) -> torch.Tensor:
+        """Pixels (..., 2) seen at depths (...) in metres -> world points (..., 3)."""
+        ones = torch.ones_like(pixels[..., :1])
+        rays = torch.cat([pixels, ones], dim=-1).double() @ torch.linalg.inv(self.intrinsic).T
+        cam = rays * depth_m.double()[..., None]
+        return ((cam - self.extrinsic[:, 3]) @ self.extrinsic[:, :3]).float()
+
+    def queries(self, first_frames: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+        """Demonstrations' first frames (N, 4, H, W) and where each ended its K stages
+        (N, K, 3) -> the K queries (K, D): the mean over demonstrations of the map's feature
+        under each point."""
+        n, k = points.shape[:2]
+        if k != self.config.num_targets:
+            raise ValueError(
+                f"{k} stage points per demonstration, the localizer locates "
+                f"{self.config.num_targets}"
+            )
+        maps = self.map(first_frames)
+        pixels = self.project(points).reshape(n * k, 2)
+        feats = sample(maps.repeat_interleave(k, dim=0), pixels)
+        return feats.view(n, k, -1).mean(0)
+
+    def locate(self, frames: torch.Tensor, queries: torch.Tensor) -> torch.Tensor:
+        """Frames (B, 4, H, W) and queries (K, D) -> world points (B, K, 3): per query, the
+        best-matching cell refined to a pixel, at the frame's depth there."""
+        maps = self.map(frames)
+        b, _, h, w = maps.shape
+        logits = torch.einsum("bdhw,kd->bkhw", maps, queries) * self.map.log_scale.exp()
+        pixels = refined_pixels(logits)  # (B, K, 2)
+        height, width = frames.shape[-2:]
+        u = pixels[..., 0].long().clamp(0, width - 1)
+        v = pixels[..., 1].long().clamp(0, height - 1)
+        rows = torch.arange(b, device=frames.device)[:, None]
+        depth_m = frames[rows, 3, v, u] * DEPTH_SCALE_MM / 1000.0
+        return self.unproject(pixels, depth_m)

@@ -1,0 +1,304 @@
+"""The target localizer: geometry, stage points, training that finds unseen colours from the
+demonstrations, and the policies that read it (online = batched, training, checkpoints)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from aed_models.data import (
+    EpisodeReader,
+    load_episodes,
+    pad_sequences,
+    stage_end_points,
+    stage_subgoals,
+)
+from aed_models.localizer import LocalizerConfig, load_localizer
+from aed_models.localizer.modeling_localizer import (
+    STRIDE,
+    TargetLocalizer,
+    colour_jitter,
+    refined_pixels,
+)
+from aed_models.nn import VisualHeadConfig
+from aed_models.policies import POLICIES, load_policy, make_policy
+from aed_models.train.localizer import (
+    TrainLocalizerConfig,
+    located_points,
+    stage_episode,
+    train_localizer,
+)
+from aed_models.train.policy import TrainPolicyConfig, train_policy
+from tests.helpers import load_script, recorded_episode, write_synthetic_collection
+
+H, W = 64, 80
+FOCAL, HEIGHT_M = 60.0, 1.0  # a camera looking straight down from 1 m
+INTRINSIC = np.array([[FOCAL, 0, W / 2], [0, FOCAL, H / 2], [0, 0, 1]], np.float32)
+EXTRINSIC = np.array([[1, 0, 0, 0], [0, -1, 0, 0], [0, 0, -1, HEIGHT_M]], np.float32)
+TOP_M = 0.02  # the squares' height
+TINY = LocalizerConfig(width=8, dim=8)
+
+
+def pixel(x: float, y: float) -> tuple[int, int]:
+    return int(FOCAL * x + W / 2), int(-FOCAL * y + H / 2)
+
+
+def colours(env_index: int, split: str) -> tuple[np.ndarray, np.ndarray]:
+    """The target square's colour and a distractor's; the novel split's are never the base's."""
+    hue = np.random.default_rng([env_index, split == "novel"]).uniform(0.3, 1.0, 3)
+    return (255 * hue).astype(np.uint8), (255 * (1.0 - hue) * 0.8).astype(np.uint8)
+
+
+def make_maker(split: str = "base"):
+    def synthetic(role: str, env_index: int, seed: int, steps: int):
+        """A target square (the `button`) and a distractor on a table 1 m below the camera; the
+        TCP descends onto the target, which completes the task's one stage two steps before
+        the end, then lifts."""
+        rng = np.random.default_rng(seed)
+        (bx, by), (dx, dy) = rng.uniform([-0.2, -0.15], [0.2, 0.15], (2, 2))
+        target, distractor = colours(env_index, split)
+        rgb = np.full((steps + 1, H, W, 3), 40, np.uint8)
+        depth = np.full((steps + 1, H, W, 1), 1000, np.int16)
+        for (x, y), colour in (((dx, dy), distractor), ((bx, by), target)):
+            u, v = pixel(x, y)
+            rgb[:, v - 3 : v + 3, u - 3 : u + 3] = colour
+            depth[:, v - 3 : v + 3, u - 3 : u + 3] = int(1000 * (HEIGHT_M - TOP_M))
+        t = np.linspace(0.0, 1.0, steps)[:, None]
+        tcp = np.zeros((steps + 1, 7), np.float32)
+        tcp[:steps, :3] = (1 - t) * np.array([0.0, 0.0, 0.3]) + t * np.array([bx, by, TOP_M])
+        tcp[steps, :3] = bx, by, 0.1
+        tcp[:, 3] = 1.0
+        button = np.zeros((steps + 1, 15), np.float32)
+        button[:, :3] = bx, by, 0.0
+        actions = np.zeros((steps, 4), np.float32)
+        actions[:, :3] = np.diff(tcp[:, :3], axis=0) * 10
+        camera = {
+            "intrinsic_cv": np.tile(INTRINSIC, (steps + 1, 1, 1)),
+            "extrinsic_cv": np.tile(EXTRINSIC, (steps + 1, 1, 1)),
+        }
+        stage = (np.arange(steps) >= steps - 2).astype(np.int16)
+        return recorded_episode(
+            "PressButton", role, env_index, seed, rgb, depth, actions, tcp,
+            {"articulations": {"button": button}}, split=split, sensor_param=camera, stage=stage,
+        )  # fmt: skip
+
+    return synthetic
+
+
+synthetic = make_maker("base")
+
+
+@pytest.fixture(scope="module")
+def collections(tmp_path_factory):
+    root = tmp_path_factory.mktemp("localizer")
+    base = write_synthetic_collection(
+        root / "base", {"demo": 3, "agent_success": 3}, envs=tuple(range(8)), steps=5,
+        step_increment=1, make_episode=make_maker("base"), demo_seed_offset=50,
+    )  # fmt: skip
+    novel = write_synthetic_collection(
+        root / "novel", {"demo": 4}, envs=(0, 1, 2), steps=5, step_increment=1,
+        make_episode=make_maker("novel"),
+    )  # fmt: skip
+    return base, novel
+
+
+def localizer_config(base, out, **kw) -> TrainLocalizerConfig:
+    recipe = {"epochs": 3, "updates": 50, "batch": 8, "max_frames": 3, "colour": 0.0}
+    return TrainLocalizerConfig.from_preset(
+        "PressButton", data=base, out=out, num_envs=0, progress=False, **{**recipe, **kw}
+    )
+
+
+@pytest.fixture(scope="module")
+def localizer_path(collections, tmp_path_factory):
+    out = tmp_path_factory.mktemp("trained")
+    return train_localizer(localizer_config(collections[0], out), TINY)
+
+
+def camera_localizer(config: LocalizerConfig = TINY) -> TargetLocalizer:
+    localizer = TargetLocalizer(config)
+    localizer.set_camera(torch.from_numpy(INTRINSIC), torch.from_numpy(EXTRINSIC))
+    return localizer
+
+
+def test_geometry_round_trips():
+    localizer = camera_localizer()
+    point = torch.tensor([[0.1, -0.05, 0.0]])  # on the table, 1 m below the camera
+    uv = localizer.project(point)
+    assert torch.allclose(uv, torch.tensor([[W / 2 + 6.0, H / 2 + 3.0]]))
+    assert torch.allclose(localizer.unproject(uv, torch.tensor([HEIGHT_M])), point, atol=1e-6)
+    logits = torch.full((2, 4, 5), -10.0)
+    logits[0, 2, 3] = 10.0
+    logits[1, 1, 1] = logits[1, 1, 2] = 10.0  # a tie: the refinement lands between the cells
+    pixels = refined_pixels(logits)
+    assert torch.allclose(pixels[0], torch.tensor([3.5 * STRIDE, 2.5 * STRIDE]))
+    assert torch.allclose(pixels[1], torch.tensor([2.0 * STRIDE, 1.5 * STRIDE]))
+
+
+def test_stage_end_points_are_where_each_stage_ended():
+    tcp = np.arange(8 * 3, dtype=np.float32).reshape(8, 3)
+    stage = np.array([0, 0, 1, 1, 1, 2, 2])  # stage 1 done by step 2, stage 2 by step 5
+    points = stage_end_points(torch.from_numpy(stage_subgoals(tcp, stage)), 2)
+    assert torch.equal(points, torch.from_numpy(tcp[[3, 6]]))
+    with pytest.raises(ValueError, match="completing 0 stages, 1 needed"):
+        stage_end_points(torch.from_numpy(stage_subgoals(tcp, np.zeros(7))), 1)
+
+
+def test_colour_jitter_recolours_rgb_and_keeps_depth():
+    """Each sequence gets one recolouring: its RGB channels permuted and scaled (or made grey),
+    the same on all its frames; depth untouched; strength 0 is the identity."""
+    colour = torch.tensor([0.8, 0.4, 0.1])
+    frames = torch.zeros(64, 3, 4, 8, 8)
+    frames[:, :, :3] = colour.view(1, 1, 3, 1, 1)
+    frames[:, :, 3] = torch.rand(64, 3, 8, 8)
+    generator = torch.Generator().manual_seed(0)
+    assert colour_jitter(frames, 0.0, generator) is frames
+    out = colour_jitter(frames, 0.3, generator)
+    assert torch.equal(out[:, :, 3], frames[:, :, 3])
+    rgb = out[:, :, :3]
+    assert torch.equal(rgb[:, :1].expand_as(rgb), rgb)  # one draw per sequence, every frame
+    rgb = out[:, 0, :3, 0, 0]
+    grey = (rgb[:, 0] == rgb[:, 1]) & (rgb[:, 1] == rgb[:, 2])
+    assert 0 < grey.sum() < 64
+    assert len(set(rgb[~grey].argmax(dim=1).tolist())) > 1  # the red channel moved
+    for row in rgb[~grey]:  # each a permutation of the colour, scaled by gains in [0.7, 1.3]
+        ratios = [
+            row / colour[list(p)]
+            for p in ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0))
+        ]
+        assert any(((r >= 0.7 - 1e-6) & (r <= 1.3 + 1e-6)).all() for r in ratios), row
+
+
+@torch.no_grad()
+def test_trained_localizer_finds_unseen_colours_from_the_demonstrations(
+    localizer_path, collections
+):
+    """Trained on 8 base environments, it places novel targets (colours it never saw) from
+    three demonstrations well inside the spread of the targets."""
+    _, novel = collections
+    localizer = load_localizer(localizer_path)
+    assert localizer.config.num_targets == 1 and localizer.sha256
+    log = torch.load(localizer_path, weights_only=True)["extra"]["log"]
+    assert log[-1]["match_loss"] < 0.6 * log[0]["match_loss"], log
+    errors, guesses = [], []
+    for env in (0, 1, 2):
+        demos = [e for e in load_episodes(novel, split="novel") if e.env_index == env]
+        infos = [stage_episode(ref, 1, "front") for ref in demos]
+        reader = EpisodeReader()
+        firsts = torch.stack([reader.read(i.ref, np.array([0])).frames[0] for i in infos])
+        points = torch.from_numpy(np.stack([i.points for i in infos])).float()
+        for j in range(len(infos)):
+            others = [k for k in range(len(infos)) if k != j]
+            queries = localizer.queries(firsts[others], points[others])
+            located = localizer.locate(firsts[j : j + 1], queries)[0, 0]
+            errors.append(float(torch.linalg.norm(located[:2] - points[j, 0, :2])))
+            guesses.append(float(torch.linalg.norm(points[j, 0, :2])))
+    assert np.mean(errors) < 0.4 * np.mean(guesses), (errors, guesses)
+
+
+def test_located_points_of_the_agent_episodes(localizer_path, collections):
+    base, _ = collections
+    episodes = load_episodes(base)
+    localizer = load_localizer(localizer_path)
+    located = located_points(localizer, episodes, num_demos=3)
+    agents = [e for e in episodes if e.role == "agent_success"]
+    assert sorted(located) == sorted((str(e.path), e.traj) for e in agents)
+    errors = [
+        np.linalg.norm(
+            located[str(e.path), e.traj][0, :2] - stage_episode(e, 1, "front").points[0, :2]
+        )
+        for e in agents
+    ]
+    assert np.median(errors) < 0.05, errors  # in its training environments
+
+
+def test_localizer_training_resumes_to_the_same_weights(collections, tmp_path):
+    base, _ = collections
+    whole = train_localizer(localizer_config(base, tmp_path / "whole", epochs=2, updates=5), TINY)
+    train_localizer(localizer_config(base, tmp_path / "split", epochs=1, updates=5), TINY)
+    resumed = train_localizer(localizer_config(base, tmp_path / "split", epochs=2, updates=5), TINY)
+    a, b = load_localizer(whole).state_dict(), load_localizer(resumed).state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    with pytest.raises(ValueError, match="profile='paper'"):
+        localizer_config(base, tmp_path / "x", profile="paper")
+
+
+def policy_config(name: str, localizer: LocalizerConfig | None = TINY):
+    tiny = {"dct": {"num_heads": 4, "ff_dim": 32}, "scan": {"lstm_hidden": 12, "attention_dim": 8}}
+    visual = VisualHeadConfig(arch="small_cnn", out_dim=16, width=4, dropout=0.0)
+    return POLICIES.preset(
+        name, "mini", visual=visual, actor_hidden=(16, 8), frozen_encoder=False,
+        localizer=localizer, **tiny.get(name, {}),
+    )  # fmt: skip
+
+
+def episode_batch(collection, env: int, role: str, n: int):
+    refs = [e for e in load_episodes(collection) if e.env_index == env and e.role == role][:n]
+    reader = EpisodeReader()
+    return pad_sequences([reader.read(r) for r in refs])
+
+
+@pytest.mark.parametrize("name", ["naive_dc", "dct", "scan"])
+def test_online_actions_equal_batched_with_a_localizer(name, collections):
+    """The policy locates its targets in the rollout's first frame, online and batched alike,
+    and a batch given those points (`located`, as training caches them) acts the same."""
+    base, _ = collections
+    torch.manual_seed(0)
+    policy = make_policy(name, policy_config(name))
+    policy.localizer.set_camera(torch.from_numpy(INTRINSIC), torch.from_numpy(EXTRINSIC))
+    policy.set_action_stats(torch.randn(50, 4) * 0.2)
+    policy.eval()
+    demos = episode_batch(base, 0, "demo", 3)
+    rollout = episode_batch(base, 0, "agent_success", 1)
+    with torch.no_grad():
+        out = policy(rollout, demos)
+        points = policy.localizer.locate(rollout["frames"][:, 0], policy.demo_queries(demos))
+        located = points.flatten(1)[:, None].expand(-1, rollout["mask"].shape[1], -1)
+        given = policy({**rollout, "located": located}, demos)
+    assert torch.allclose(out["pos"], given["pos"]) and torch.allclose(out["grip"], given["grip"])
+    expected = policy.to_action(out["pos"], out["grip"])[0]
+    policy.reset(demos)
+    for t in range(int(rollout["lengths"][0])):
+        action = policy.act(rollout["frames"][0, t], proprio=rollout["proprio"][0, t])
+        assert np.allclose(action, expected[t].numpy(), atol=1e-4), t
+    with pytest.raises(ValueError, match="rollouts\\['located'\\] of shape"):
+        policy({**rollout, "located": located[..., :2]}, demos)
+    with pytest.raises(ValueError, match="demos\\['subgoal'\\]"):
+        policy.reset({k: v for k, v in demos.items() if k != "subgoal"})
+
+
+def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, tmp_path):
+    base, _ = collections
+    cfg = TrainPolicyConfig.from_preset(
+        "PressButton", "naive_dc", "mini", data=base, out=tmp_path / "policy",
+        localizer=localizer_path, epochs=2, progress=False, num_envs=0, composition=(2, 2),
+    )  # fmt: skip
+    policy = load_policy(train_policy(cfg, policy_config("naive_dc", LocalizerConfig())))
+    localizer = load_localizer(localizer_path)
+    assert policy.config.localizer == localizer.config  # the checkpoint's sizes, not the preset's
+    a, b = policy.localizer.state_dict(), localizer.state_dict()
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    extra = torch.load(cfg.out / "policy.pt", weights_only=True)["extra"]
+    assert extra["localizer_sha256"] == localizer.sha256
+    missing = dataclasses.replace(cfg, out=tmp_path / "x", localizer=tmp_path / "missing.pt")
+    with pytest.raises(FileNotFoundError, match="aed train-localizer"):
+        train_policy(missing, policy_config("naive_dc"))
+
+
+def test_the_probe_script_measures_novel_errors(localizer_path, collections, tmp_path):
+    probe = load_script("demo_localizer")
+    base, novel = collections
+    config = probe.Config(localizer=localizer_path, novel=novel, data=base, out=tmp_path / "r.json")
+    result = probe.main(config)
+    errors = result["novel_demo_xy_error_cm"]
+    assert errors["localizer"]["n"] == errors["mean_guess"]["n"] == 12
+    low, high = errors["localizer"]["mean_95"]
+    assert low <= errors["localizer"]["mean"] <= high
+    assert errors["localizer"]["mean"] < 0.5 * errors["mean_guess"]["mean"], errors
+    assert json.loads((tmp_path / "r.json").read_text()) == result
+    every = probe.main(dataclasses.replace(config, every=2, out=None))["novel_demo_xy_error_cm"]
+    assert every["localizer"]["n"] == 3 * (3 + 4 + 4 + 5)  # demonstrations of 6 to 9 frames
