@@ -217,11 +217,11 @@ class DCPolicy(nn.Module):
         """The localizer's K queries (K, D) from the demonstrations' first frames and where
         each ended its stages (their `subgoal` targets, unthinned)."""
         frames, mask = demos.get("frames"), demos.get("mask")
-        if frames is None or frames.dim() != 5 or demos.get("subgoal") is None:
+        if frames is None or frames.dim() != 5 or mask is None or demos.get("subgoal") is None:
             raise ValueError(
                 "demos: this policy locates its targets from the demonstrations' first frames "
-                "and stage targets; expected demos['frames'] (N, L, 4, H, W) and "
-                "demos['subgoal'] (N, L, 3)"
+                "and stage targets; expected demos['frames'] (N, L, 4, H, W), demos['mask'] "
+                "(N, L) and demos['subgoal'] (N, L, 3)"
             )
         k = self.localizer.config.num_targets
         lengths = mask.sum(1).tolist()
@@ -312,12 +312,12 @@ class DCPolicy(nn.Module):
         return out
 
     def _actor(
-        self, history: torch.Tensor, task: torch.Tensor, located: torch.Tensor | None = None
+        self, history: torch.Tensor, task: torch.Tensor, offsets: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """[f_h, f_zeta (, located offsets)] -> (pos, gripper, subgoal offset or None). With a
-        subgoal head, the actor also reads the predicted offset: moving toward a target it was
-        told is an easy map."""
-        parts = [history, task] if located is None else [history, task, located]
+        """[f_h, f_zeta (, offsets to the located points)] -> (pos, gripper, subgoal offset or
+        None). With a subgoal head, the actor also reads the predicted offset: moving toward a
+        target it was told is an easy map."""
+        parts = [history, task] if offsets is None else [history, task, offsets]
         actor_input = torch.cat(parts, dim=-1)
         if self.subgoal_head is None:
             return (*self.actor(actor_input), None)
