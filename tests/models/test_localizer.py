@@ -284,6 +284,14 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
     extra = torch.load(cfg.out / "policy.pt", weights_only=True)["extra"]
     assert extra["localizer_sha256"] == localizer.sha256
+    diagnosis = load_script("rollout_localization").main(  # the base episodes as its "rollouts"
+        load_script("rollout_localization").Config(
+            policy=cfg.out / "policy.pt", rollouts=base, demos=base, num_demos=3
+        )
+    )
+    found, missed = diagnosis["found"], diagnosis["missed"]
+    assert found["rollouts"] + missed["rollouts"] == diagnosis["rollouts"] == 48
+    assert found["successes"] + missed["successes"] == 48  # every synthetic episode succeeds
     missing = dataclasses.replace(cfg, out=tmp_path / "x", localizer=tmp_path / "missing.pt")
     with pytest.raises(FileNotFoundError, match="aed train-localizer"):
         train_policy(missing, policy_config("naive_dc"))

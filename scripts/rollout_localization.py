@@ -1,0 +1,85 @@
+"""Where a localizer policy's rollouts went wrong: the target located in each rollout's first
+frame against the object's true position, the TCP's closest approach to it, and the outcome.
+
+Splits the rollouts into those whose located target lies within `--near` of the object and the
+rest, with the success count of each: a policy that fails where it was told the right place
+fails at control, one that fails only where the localizer missed fails at localization.
+
+    python scripts/rollout_localization.py --policy runs/PressButton/policies/scan/policy.pt \
+        --rollouts runs/PressButton/rollouts/scan/novel --demos runs/PressButton/data/novel
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import torch
+import tyro
+
+from aed_eval.scoring import Demonstrations
+from aed_models.data import EpisodeReader
+from aed_models.policies import load_policy
+from aed_tasks import trajectory
+
+
+@dataclass
+class Config:
+    policy: Path
+    """A policy checkpoint with a target localizer."""
+    rollouts: Path
+    """Its rollouts (`aed rollout`)."""
+    demos: Path
+    """The collection holding the rollouts' demonstrations."""
+    target: str = "button"
+    """The task object (an actor or articulation of the env states) the first stage acts on."""
+    num_demos: int = 5
+    near: float = 0.03
+    """Metres: a located target this close (horizontally) to the object counts as found."""
+
+
+@torch.no_grad()
+def main(cfg: Config) -> dict:
+    policy = load_policy(cfg.policy)
+    if policy.localizer is None:
+        raise ValueError(f"{cfg.policy}: a policy without a target localizer")
+    refs = list(trajectory.scan_collection(cfg.rollouts).episodes())
+    demos = Demonstrations(cfg.demos, refs[0].split, cfg.num_demos)
+    reader = EpisodeReader()
+    located, approach, success = [], [], []
+    for ref in sorted(refs, key=lambda r: r.env_index):
+        point = policy.localizer.locate(
+            reader.read(ref, np.array([0])).frames, policy.demo_queries(demos[ref.env_index])
+        )[0, 0].numpy()
+        with h5py.File(ref.path, "r") as h5:
+            group = h5[ref.traj]
+            states = group["env_states"]
+            kind = "articulations" if cfg.target in states["articulations"] else "actors"
+            xy = states[kind][cfg.target][0, :2]
+            tcp = group["obs/extra/tcp_pose"][()][:, :2]
+        located.append(float(np.linalg.norm(point[:2] - xy)))
+        approach.append(float(np.linalg.norm(tcp - xy, axis=1).min()))
+        success.append(bool(ref.success))
+    located, approach, success = map(np.asarray, (located, approach, success))
+    near = located < cfg.near
+    result = {
+        "rollouts": len(refs),
+        "located_median_cm": 100 * float(np.median(located)),
+        "closest_approach_median_cm": 100 * float(np.median(approach)),
+        "found": {"rollouts": int(near.sum()), "successes": int(success[near].sum())},
+        "missed": {"rollouts": int((~near).sum()), "successes": int(success[~near].sum())},
+        "failures_found_closest_approach_cm": sorted(
+            round(100 * a, 1) for a in approach[near & ~success]
+        ),
+    }
+    print(json.dumps(result, indent=1))
+    return result
+
+
+if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    main(tyro.cli(Config))
