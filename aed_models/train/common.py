@@ -18,7 +18,7 @@ from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Self
 
 import torch
 from torch import nn
@@ -27,6 +27,8 @@ from tqdm import tqdm
 
 from aed_models.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
 from aed_models.data import EnvironmentSampler, load_episodes
+from aed_models.layout import RunLayout
+from aed_models.recipe import Profile, Recipe, check_profile
 
 logger = logging.getLogger(__name__)
 
@@ -147,6 +149,63 @@ def run_epoch(
 def config_record(cfg: Any) -> dict[str, Any]:
     """A training config as stored in its checkpoints (paths as strings)."""
     return {k: str(v) if isinstance(v, Path) else v for k, v in dataclasses.asdict(cfg).items()}
+
+
+@dataclass(kw_only=True)
+class TaskModelTraining:
+    """What to train once per task before its policies (the mini scene encoder, the target
+    localizer), on the task's base collection; a subclass adds its recipe's fields (build it
+    with `from_preset`).
+
+    Args:
+        task: task name (e.g. PressButton).
+        profile: the preset of the model's size and recipe (mini, demo).
+        data: collection folder.
+        out: output folder (checkpoints and log).
+        num_envs: use the first N base environments (0: all).
+        seed: seeds the model, the draws and the augmentation.
+        resume: continue from <out>/last.pt when it exists.
+        progress: show a progress bar.
+    """
+
+    task: str
+    profile: Profile
+    data: Path
+    out: Path
+    num_envs: int = 0
+    seed: int = 0
+    resume: bool = True
+    progress: bool = True
+
+    recipe: ClassVar[type[Recipe]]  # the recipe whose preset fills the other fields
+    layout_name: ClassVar[str]  # the `RunLayout` method naming the final checkpoint
+    not_in_paper: ClassVar[str]  # why the paper profile has no such model
+
+    def __post_init__(self) -> None:
+        super().__post_init__()  # the recipe's checks
+        if check_profile(self.profile) == "paper":
+            raise ValueError(f"profile='paper': {self.not_in_paper}")
+        if self.num_envs < 0:
+            raise ValueError(f"num_envs={self.num_envs}: must be >= 0")
+        self.data, self.out = Path(self.data), Path(self.out)
+
+    @classmethod
+    def from_preset(
+        cls,
+        task: str = "PressButton",
+        profile: str = "mini",
+        runs: Path = Path("runs"),
+        **overrides: Any,
+    ) -> Self:
+        layout = RunLayout(runs)
+        preset = {
+            **dataclasses.asdict(cls.recipe.preset(profile)),
+            "task": task,
+            "profile": profile,
+            "data": layout.data(task, "base"),
+            "out": getattr(layout, cls.layout_name)(task).parent,
+        }
+        return cls(**{**preset, **overrides})
 
 
 @dataclass

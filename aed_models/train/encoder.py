@@ -18,7 +18,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import ClassVar
 
 import h5py
 import numpy as np
@@ -29,9 +29,9 @@ from tqdm import tqdm
 from aed_models.data import EpisodeReader, load_episodes, scene_state, scene_state_names
 from aed_models.encoder import FAMILY, NAME, EncoderConfig, EncoderRecipe
 from aed_models.encoder.modeling_encoder import SceneEncoder
-from aed_models.layout import RunLayout
-from aed_models.recipe import Profile, check_profile
+from aed_models.recipe import Recipe
 from aed_models.train.common import (
+    TaskModelTraining,
     TrainingFolder,
     check_task,
     config_record,
@@ -48,55 +48,13 @@ logger = logging.getLogger(__name__)
 
 
 @dataclass
-class TrainEncoderConfig(EncoderRecipe):
+class TrainEncoderConfig(TaskModelTraining, EncoderRecipe):
     """The scene encoder of one task, on its base collection: the recipe's fields and what to
-    train (build it with `from_preset`).
+    train (build it with `from_preset`)."""
 
-    Args:
-        task: task name (e.g. PressButton).
-        profile: the preset of the encoder's size and recipe (mini, demo).
-        data: collection folder.
-        out: output folder (checkpoints and log).
-        num_envs: use the first N base environments (0: all).
-        seed: seeds the model, the draws and the augmentation.
-        resume: continue from <out>/last.pt when it exists.
-        progress: show a progress bar.
-    """
-
-    task: str
-    profile: Profile
-    data: Path
-    out: Path
-    num_envs: int = 0
-    seed: int = 0
-    resume: bool = True
-    progress: bool = True
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if check_profile(self.profile) == "paper":
-            raise ValueError("profile='paper': the paper trains its visual heads end to end")
-        if self.num_envs < 0:
-            raise ValueError(f"num_envs={self.num_envs}: must be >= 0")
-        self.data, self.out = Path(self.data), Path(self.out)
-
-    @classmethod
-    def from_preset(
-        cls,
-        task: str = "PressButton",
-        profile: str = "mini",
-        runs: Path = Path("runs"),
-        **overrides: Any,
-    ) -> TrainEncoderConfig:
-        layout = RunLayout(runs)
-        preset = {
-            **dataclasses.asdict(EncoderRecipe.preset(profile)),
-            "task": task,
-            "profile": profile,
-            "data": layout.data(task, "base"),
-            "out": layout.encoder(task).parent,
-        }
-        return cls(**{**preset, **overrides})
+    recipe: ClassVar[type[Recipe]] = EncoderRecipe
+    layout_name: ClassVar[str] = "encoder"
+    not_in_paper: ClassVar[str] = "the paper trains its visual heads end to end"
 
 
 class SceneFrames:

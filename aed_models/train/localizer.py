@@ -21,7 +21,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import ClassVar
 
 import h5py
 import numpy as np
@@ -30,7 +30,6 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from aed_models.data import EpisodeReader, load_episodes, stage_end_points, stage_subgoals
-from aed_models.layout import RunLayout
 from aed_models.localizer import FAMILY, NAME, LocalizerConfig, LocalizerRecipe
 from aed_models.localizer.modeling_localizer import (
     TargetLocalizer,
@@ -38,8 +37,9 @@ from aed_models.localizer.modeling_localizer import (
     sample,
     target_cells,
 )
-from aed_models.recipe import Profile, check_profile
+from aed_models.recipe import Recipe
 from aed_models.train.common import (
+    TaskModelTraining,
     TrainingFolder,
     check_task,
     config_record,
@@ -57,55 +57,13 @@ EXPERT_ROLES = ("demo", "agent_success")
 
 
 @dataclass
-class TrainLocalizerConfig(LocalizerRecipe):
-    """The target localizer of one task, on its base collection: the recipe's fields and what
-    to train (build it with `from_preset`).
+class TrainLocalizerConfig(TaskModelTraining, LocalizerRecipe):
+    """The target localizer of one task, on its base collection: the recipe's fields and what to
+    train (build it with `from_preset`)."""
 
-    Args:
-        task: task name (e.g. PressButton).
-        profile: the preset of the localizer's size and recipe (mini, demo).
-        data: collection folder.
-        out: output folder (checkpoints and log).
-        num_envs: use the first N base environments (0: all).
-        seed: seeds the model, the draws and the recolouring.
-        resume: continue from <out>/last.pt when it exists.
-        progress: show a progress bar.
-    """
-
-    task: str
-    profile: Profile
-    data: Path
-    out: Path
-    num_envs: int = 0
-    seed: int = 0
-    resume: bool = True
-    progress: bool = True
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if check_profile(self.profile) == "paper":
-            raise ValueError("profile='paper': the paper's policies have no localizer")
-        if self.num_envs < 0:
-            raise ValueError(f"num_envs={self.num_envs}: must be >= 0")
-        self.data, self.out = Path(self.data), Path(self.out)
-
-    @classmethod
-    def from_preset(
-        cls,
-        task: str = "PressButton",
-        profile: str = "mini",
-        runs: Path = Path("runs"),
-        **overrides: Any,
-    ) -> TrainLocalizerConfig:
-        layout = RunLayout(runs)
-        preset = {
-            **dataclasses.asdict(LocalizerRecipe.preset(profile)),
-            "task": task,
-            "profile": profile,
-            "data": layout.data(task, "base"),
-            "out": layout.localizer(task).parent,
-        }
-        return cls(**{**preset, **overrides})
+    recipe: ClassVar[type[Recipe]] = LocalizerRecipe
+    layout_name: ClassVar[str] = "localizer"
+    not_in_paper: ClassVar[str] = "the paper's policies have no localizer"
 
 
 @dataclass
