@@ -181,21 +181,27 @@ def labelled_metrics(
     thresholds: dict[str, float],
     cfg: EvaluateConfig,
 ) -> dict[str, Any]:
-    """Frame-level AUROC (interval over episodes) and, at each threshold, detection delays."""
+    """Frame-level AUROC and time-matched AUROC (intervals over episodes) and, at each
+    threshold, detection delays.
+
+    Error frames come late in an episode, so the frame AUROC credits a score that only grows
+    with time; the time-matched AUROC compares frames of the same 5-step bin only, where the
+    step count alone (`time_only`) scores about 0.5.
+    """
     labels = [ref.frame_labels()[: len(s)] for ref, s in zip(refs, scores, strict=True)]
     failures = np.asarray([r.error_onset is not None for r in refs])
-    interval = metrics.stratified_bootstrap(
-        lambda idx: metrics.frame_auroc([scores[i] for i in idx], [labels[i] for i in idx]),
-        [np.flatnonzero(failures), np.flatnonzero(~failures)],
-        cfg.bootstrap,
-        seed=cfg.seed,
-    )
-    result: dict[str, Any] = {
-        "frame_auroc": metrics.frame_auroc(scores, labels),
-        "frame_auroc_interval": interval,
-        "episodes": len(refs),
-        "delays": {},
-    }
+    result: dict[str, Any] = {"episodes": len(refs), "delays": {}}
+    for key, auroc in (
+        ("frame_auroc", metrics.frame_auroc),
+        ("time_matched_auroc", metrics.time_matched_auroc),
+    ):
+        result[key] = auroc(scores, labels)
+        result[f"{key}_interval"] = metrics.stratified_bootstrap(
+            lambda idx, auroc=auroc: auroc([scores[i] for i in idx], [labels[i] for i in idx]),
+            [np.flatnonzero(failures), np.flatnonzero(~failures)],
+            cfg.bootstrap,
+            seed=cfg.seed,
+        )
     onsets = [
         (s, r.onset_frame) for s, r in zip(scores, refs, strict=True) if r.onset_frame is not None
     ]
@@ -338,6 +344,15 @@ def evaluate_policy(cfg: EvaluateConfig) -> dict[str, Any]:
             ending: curve_metrics(view.cut(scores), view.failed, "probability", cfg)
             for ending, view in views.items()
         }
+    if labelled_refs:
+        lengths = [len(x) for x in labelled_scores[names[0]]]
+        results["labelled_references"] = {
+            name: labelled_metrics(scores, labelled_refs, {}, cfg)
+            for name, scores in (
+                ("time_only", metrics.time_only_scores(lengths, stored.horizon)),
+                ("random", metrics.random_scores(lengths, cfg.seed)),
+            )
+        }
     write_results(
         Path(cfg.out),
         results,
@@ -404,6 +419,18 @@ def with_interval(value: Any, interval: Any, digits: int = 3) -> str:
         return "-"
     low, high = interval if interval is not None else (float("nan"), float("nan"))
     return f"{value:.{digits}f} [{_f(low, min(digits, 2))}, {_f(high, min(digits, 2))}]"
+
+
+def labelled_cells(lab: dict[str, Any]) -> str:
+    """`frame AUROC | time-matched AUROC | delays` of one detector's (or reference's) labelled
+    metrics."""
+    return " | ".join(
+        [
+            with_interval(lab.get("frame_auroc"), lab.get("frame_auroc_interval")),
+            with_interval(lab.get("time_matched_auroc"), lab.get("time_matched_auroc_interval")),
+            delay_counts_text(lab.get("delays", {})),
+        ]
+    )
 
 
 def too_small(outcomes: dict[str, int]) -> bool:
@@ -479,17 +506,15 @@ def format_results(results: dict[str, Any]) -> str:
             "",
             "Labelled novel episodes (expert successes and injected failures)",
             "",
-            "| detector | frame AUROC | delays early/on time/late/missed |",
-            "|---|---:|---|",
+            "| detector | frame AUROC | time-matched AUROC | delays early/on time/late/missed |",
+            "|---|---:|---:|---|",
         ]
-        for name, row in results["detectors"].items():
-            lab = row.get("labelled", {})
-            delays = delay_counts_text(lab.get("delays", {}))
-            lines.append(
-                f"| {name} | "
-                f"{with_interval(lab.get('frame_auroc'), lab.get('frame_auroc_interval'))} | "
-                f"{delays} |"
-            )
+        rows = [
+            *((name, row.get("labelled", {})) for name, row in results["detectors"].items()),
+            *((f"*{k}*", v) for k, v in results.get("labelled_references", {}).items()),
+        ]
+        for name, lab in rows:
+            lines.append(f"| {name} | {labelled_cells(lab)} |")
     return "\n".join(lines)
 
 

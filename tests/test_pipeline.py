@@ -76,10 +76,12 @@ def test_every_stage_leaves_what_the_next_reads(pipeline):
         "time_only",
         "random",
     }
+    assert set(results["labelled_references"]) == {"time_only", "random"}
     for row in results["detectors"].values():
         rates = row["horizon"]["calibrated"]["expert@0.5"]
         assert 0.0 <= rates["tpr"] <= 1.0 and len(row["horizon"]["auroc_interval"]) == 2
         assert 0.0 <= row["labelled"]["frame_auroc"] <= 1.0
+        assert len(row["labelled"]["time_matched_auroc_interval"]) == 2
         assert sum(row["labelled"]["delays"]["expert@0.5"]["counts"].values()) == 1
     folder = layout.detector(TASK, "probe", "naive_dc").parent
     expert = json.loads((folder / "calibration-expert.json").read_text())

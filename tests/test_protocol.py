@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import gymnasium as gym
 import numpy as np
@@ -16,7 +17,7 @@ import aed_tasks
 from aed_eval import metrics
 from aed_eval.calibrate import CalibrateConfig, calibrate_detectors
 from aed_eval.collect import CollectConfig, episode_seed, run_collection
-from aed_eval.evaluate import ending_views
+from aed_eval.evaluate import ending_views, labelled_metrics
 from aed_eval.rollout import (
     ROLE,
     RolloutConfig,
@@ -212,6 +213,27 @@ def test_references_sit_at_chance_on_equal_length_rollouts():
         auroc = metrics.rollout_curves(maxima, failed, grid).auroc
         low, high = metrics.curve_intervals(maxima, failed, grid, num=300)["auroc"]
         assert low <= 0.5 <= high and low <= auroc <= high
+
+
+def test_the_labelled_table_matches_frames_in_time_where_the_step_count_scores_chance():
+    """Errors come late in a labelled episode: the step count alone ranks their frames high,
+    and only the time-matched AUROC puts it at chance."""
+    rng = np.random.default_rng(0)
+    refs = []
+    for k in range(20):
+        onset = int(rng.integers(40, 80)) if k % 2 else None
+        labels = np.zeros(120, dtype=bool) if onset is None else np.arange(120) >= onset
+        refs.append(
+            SimpleNamespace(
+                frame_labels=lambda labels=labels: labels, error_onset=onset, onset_frame=onset
+            )
+        )
+    cfg = SimpleNamespace(bootstrap=200, seed=0, window=10)
+    time_only = labelled_metrics(metrics.time_only_scores([120] * 20, 120), refs, {}, cfg)
+    assert time_only["frame_auroc"] > 0.75
+    assert abs(time_only["time_matched_auroc"] - 0.5) < 0.05  # within a bin, onsets still lean
+    oracle = [r.frame_labels().astype(float) for r in refs]  # sees the error itself
+    assert labelled_metrics(oracle, refs, {}, cfg)["time_matched_auroc"] == 1.0
 
 
 @pytest.fixture(scope="module")
