@@ -26,6 +26,8 @@ from aed_models.data import EpisodeReader
 from aed_models.policies import load_policy
 from aed_tasks import trajectory
 
+ERROR_BINS_CM = (0, 1, 2, 3, 5, 10, float("inf"))  # the located error's bins of the success split
+
 
 @dataclass
 class Config:
@@ -50,7 +52,7 @@ def main(cfg: Config) -> dict:
     refs = list(trajectory.scan_collection(cfg.rollouts).episodes())
     demos = Demonstrations(cfg.demos, refs[0].split, cfg.num_demos)
     reader = EpisodeReader()
-    located, approach, success = [], [], []
+    located, approach, success, envs = [], [], [], []
     for ref in sorted(refs, key=lambda r: r.env_index):
         point = policy.localizer.locate(
             reader.read(ref, np.array([0])).frames, policy.demo_queries(demos[ref.env_index])
@@ -64,6 +66,7 @@ def main(cfg: Config) -> dict:
         located.append(float(np.linalg.norm(point[:2] - xy)))
         approach.append(float(np.linalg.norm(tcp - xy, axis=1).min()))
         success.append(bool(ref.success))
+        envs.append(ref.env_index)
     located, approach, success = map(np.asarray, (located, approach, success))
     near = located < cfg.near
     result = {
@@ -75,6 +78,23 @@ def main(cfg: Config) -> dict:
         "failures_found_closest_approach_cm": sorted(
             round(100 * a, 1) for a in approach[near & ~success]
         ),
+        "by_located_error_cm": {
+            f"{low:g}-{high:g}": {
+                "rollouts": int(inside.sum()),
+                "successes": int(success[inside].sum()),
+            }
+            for low, high in zip(ERROR_BINS_CM[:-1], ERROR_BINS_CM[1:], strict=True)
+            for inside in [(100 * located >= low) & (100 * located < high)]
+        },
+        "per_rollout": [
+            {
+                "env_index": e,
+                "located_cm": round(100 * x, 2),
+                "closest_cm": round(100 * a, 2),
+                "success": bool(ok),
+            }
+            for e, x, a, ok in zip(envs, located, approach, success, strict=True)
+        ],
     }
     print(json.dumps(result, indent=1))
     return result

@@ -292,6 +292,11 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
     found, missed = diagnosis["found"], diagnosis["missed"]
     assert found["rollouts"] + missed["rollouts"] == diagnosis["rollouts"] == 48
     assert found["successes"] + missed["successes"] == 48  # every synthetic episode succeeds
+    bins = diagnosis["by_located_error_cm"]
+    assert sum(b["rollouts"] for b in bins.values()) == 48
+    per_rollout = diagnosis["per_rollout"]
+    assert len(per_rollout) == 48 and all(r["success"] for r in per_rollout)
+    assert sum(r["located_cm"] < 3 for r in per_rollout) == found["rollouts"]
     missing = dataclasses.replace(cfg, out=tmp_path / "x", localizer=tmp_path / "missing.pt")
     with pytest.raises(FileNotFoundError, match="aed train-localizer"):
         train_policy(missing, policy_config("naive_dc"))
