@@ -20,6 +20,7 @@ def _commands() -> dict[str, Callable[..., Any]]:
         demo,
         doctor,
         evaluate,
+        experiments,
         models,
         monitor,
         render,
@@ -45,6 +46,7 @@ def _commands() -> dict[str, Callable[..., Any]]:
         "report": report.report,
         "models": models.models,
         "demo": demo.demo,
+        "experiments": experiments.experiments,
     }
 
 

@@ -1,0 +1,203 @@
+"""`aed experiments`: the paper's main experiment on every task, planned, resumed and reported.
+
+The main experiment is, task by task, the protocol `aed demo` runs for one (collect, train the
+scene encoder, localizer, policies and detectors, roll out, calibrate, evaluate) under the
+chosen profile's counts, then one report over every task. It takes many hours on two cores, so
+it is a list of jobs (one stage's config each) and a ledger, `<runs>/experiments.json`, of the
+jobs that finished: a run skips every job the ledger holds with the same config and resumes
+the first one that did not finish (each stage resumes its own folder). Stop it at any time, run
+the same command again. `--plan` prints what is done and what is left, and runs nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
+
+import tyro
+
+from aed_eval.checks import task_class
+from aed_models.layout import RunLayout
+from aed_models.recipe import Profile, check_profile
+from aed_tasks import trajectory
+from aed_tasks.locks import folder_lock
+
+logger = logging.getLogger(__name__)
+
+PAPER_TASKS = (
+    "CloseDrawer",
+    "PressButton",
+    "PickPlace",
+    "MoveGlassCup",
+    "OrganizeTable",
+    "BackToBox",
+    "FactoryPacking",
+)  # the paper's order
+LEDGER = "experiments.json"
+
+
+@dataclass
+class ExperimentsConfig:
+    """The main experiment's grid and where it is written.
+
+    Args:
+        profile: the preset of every stage: mini (this CPU, many hours), paper (a GPU's job),
+            demo (minutes a task).
+        tasks: the tasks of the grid, in order (default: all seven, the paper's order).
+        runs: root of everything written (default: runs/<profile>).
+        plan: print what is done and what is left; run nothing.
+        workers: simulation processes for collection and rollouts.
+        seed: root seed of every stage.
+    """
+
+    profile: Profile = "mini"
+    tasks: tuple[str, ...] = PAPER_TASKS
+    runs: Path | None = None
+    plan: bool = False
+    workers: int = 2
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_profile(self.profile)
+        if not self.tasks:
+            raise ValueError("tasks=(): name at least one task")
+        self.tasks = tuple(task_class(t).task_name for t in self.tasks)
+        if len(set(self.tasks)) != len(self.tasks):
+            raise ValueError(f"tasks={self.tasks}: a task is named twice")
+        if self.workers < 1:
+            raise ValueError(f"workers={self.workers}: must be >= 1")
+        self.runs = Path(self.runs) if self.runs is not None else Path("runs") / self.profile
+
+
+@dataclass
+class Job:
+    """One stage's config of one task: `fn(config)` does it (and resumes it)."""
+
+    task: str
+    stage: str
+    fn: Callable[[Any], Any]
+    config: Any
+
+    @property
+    def digest(self) -> str:
+        """What the job does: its function and every field of its config."""
+        name = getattr(self.fn, "__qualname__", type(self.fn).__qualname__)
+        record = {
+            "fn": f"{self.fn.__module__}.{name}",
+            "config": dataclasses.asdict(self.config),
+        }
+        text = json.dumps(record, sort_keys=True, default=str)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def plan_jobs(cfg: ExperimentsConfig) -> list[Job]:
+    """Every task's stages, each task's configs built (so validated) before anything runs."""
+    from aed_eval.demo import DemoConfig, plan_stages
+
+    jobs = []
+    for task in cfg.tasks:
+        protocol = DemoConfig.from_preset(
+            task, cfg.profile, runs=cfg.runs, workers=cfg.workers, seed=cfg.seed
+        )
+        for stage in plan_stages(protocol):
+            jobs += [Job(task, stage.name, fn, config) for fn, config in stage.jobs]
+    return jobs
+
+
+class Ledger:
+    """The finished jobs of a runs folder (`<runs>/experiments.json`), by digest."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.jobs: dict[str, dict[str, Any]] = {}
+        if self.path.exists():
+            try:
+                body = json.loads(self.path.read_text())
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+                raise ValueError(f"{self.path}: corrupt ledger ({e}); move it away to rerun") from e
+            if not isinstance(body, dict) or not isinstance(body.get("jobs"), dict):
+                raise ValueError(f"{self.path}: not an experiments ledger (no 'jobs' object)")
+            self.jobs = body["jobs"]
+
+    def done(self, job: Job) -> bool:
+        return job.digest in self.jobs
+
+    def record(self, job: Job, seconds: float) -> None:
+        self.jobs[job.digest] = {
+            "task": job.task,
+            "stage": job.stage,
+            "seconds": round(seconds, 1),
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        }
+        trajectory.write_json_atomic(self.path, {"jobs": self.jobs})
+
+
+def status_lines(jobs: Sequence[Job], ledger: Ledger) -> list[str]:
+    """Per task and stage: jobs done of planned; then the totals."""
+    planned, done = Counter(), Counter()
+    for job in jobs:
+        planned[job.task, job.stage] += 1
+        done[job.task, job.stage] += ledger.done(job)
+    lines = [
+        f"{task:<15} {stage:<24} {done[task, stage]}/{n} done"
+        for (task, stage), n in planned.items()
+    ]
+    finished = sum(done.values())
+    lines.append(f"{finished} of {len(jobs)} jobs done, {len(jobs) - finished} left")
+    return lines
+
+
+def run_jobs(jobs: Sequence[Job], ledger: Ledger) -> int:
+    """Run every job the ledger does not hold, in order, recording each as it finishes; an
+    error stops the run (what finished stays recorded). Returns the number of jobs run."""
+    ran = 0
+    for i, job in enumerate(jobs):
+        if ledger.done(job):
+            continue
+        logger.info("experiments: [%d/%d] %s: %s", i + 1, len(jobs), job.task, job.stage)
+        start = time.perf_counter()
+        job.fn(job.config)
+        ledger.record(job, time.perf_counter() - start)
+        ran += 1
+    return ran
+
+
+def evaluations(jobs: Sequence[Job]) -> list[Path]:
+    """The results.json of every evaluation job."""
+    from aed_eval.evaluate import EvaluateConfig
+
+    return [
+        Path(job.config.out) / "results.json"
+        for job in jobs
+        if isinstance(job.config, EvaluateConfig)
+    ]
+
+
+def experiments(cfg: Annotated[ExperimentsConfig, tyro.conf.arg(name="")]) -> int:
+    """The main experiment on every task (resumable): plan, run what is left, report."""
+    from aed_eval.report import ReportConfig, make_report
+
+    jobs = plan_jobs(cfg)
+    cfg.runs.mkdir(parents=True, exist_ok=True)
+    with folder_lock(cfg.runs / "experiments"):
+        ledger = Ledger(cfg.runs / LEDGER)
+        if cfg.plan:
+            print("\n".join(status_lines(jobs, ledger)))
+            return 0
+        start = time.perf_counter()
+        ran = run_jobs(jobs, ledger)
+        path = make_report(
+            ReportConfig(results=tuple(evaluations(jobs)), out=RunLayout(cfg.runs).report())
+        )
+    print(path.read_text())
+    print("\n".join(status_lines(jobs, ledger)))
+    print(f"ran {ran} jobs in {(time.perf_counter() - start) / 60:.1f} min; report: {path}")
+    return 0

@@ -1,0 +1,103 @@
+"""`aed experiments`: the main experiment's plan over every task, and a ledger that makes any
+number of stops and restarts end with each job done once."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from aed_eval.experiments import (
+    LEDGER,
+    PAPER_TASKS,
+    ExperimentsConfig,
+    Job,
+    Ledger,
+    plan_jobs,
+    run_jobs,
+    status_lines,
+)
+from tests.helpers import aed
+
+
+def test_the_main_experiment_plans_every_task_in_the_protocols_order(tmp_path):
+    jobs = plan_jobs(ExperimentsConfig(profile="mini", runs=tmp_path))
+    assert [j.task for j in jobs][:: len(jobs) // 7] == list(PAPER_TASKS)
+    stages = [j.stage for j in jobs if j.task == "PickPlace"]
+    assert stages[0] == "collect base split" and stages[-1] == "evaluate"
+    assert stages.count("train policies") == 3 and stages.count("evaluate") == 3
+    assert len({j.digest for j in jobs}) == len(jobs)  # no two jobs alike
+    assert all(
+        str(j.config.out).startswith(str(tmp_path)) for j in jobs if hasattr(j.config, "out")
+    )
+    assert (
+        status_lines(jobs, Ledger(tmp_path / LEDGER))[-1]
+        == f"0 of {len(jobs)} jobs done, {len(jobs)} left"
+    )
+
+
+@dataclass
+class Step:
+    name: str
+    value: int = 0
+
+
+class Recorder:
+    """A job function that records what it ran and fails once on a chosen step."""
+
+    def __init__(self, fail_on: str | None = None):
+        self.ran: list[str] = []
+        self.fail_on = fail_on
+
+    def __call__(self, step: Step) -> None:
+        if step.name == self.fail_on:
+            self.fail_on = None
+            raise RuntimeError(f"{step.name}: killed")
+        self.ran.append(step.name)
+
+
+def jobs_of(fn: Recorder, names: str, **changed: int) -> list[Job]:
+    return [Job("T", "stage", fn, Step(n, changed.get(n, 0))) for n in names]
+
+
+def test_a_stopped_run_resumes_where_it_stopped_and_a_changed_job_reruns(tmp_path):
+    path = tmp_path / LEDGER
+    fn = Recorder(fail_on="c")
+    with pytest.raises(RuntimeError, match="c: killed"):
+        run_jobs(jobs_of(fn, "abcd"), Ledger(path))
+    assert fn.ran == ["a", "b"]
+    assert run_jobs(jobs_of(fn, "abcd"), Ledger(path)) == 2  # a fresh process: c, d
+    assert fn.ran == ["a", "b", "c", "d"]
+    assert run_jobs(jobs_of(fn, "abcd"), Ledger(path)) == 0
+    assert run_jobs(jobs_of(fn, "abcd", b=1), Ledger(path)) == 1  # b's config changed
+    assert fn.ran[-1] == "b"
+    lines = status_lines(jobs_of(fn, "abcde"), Ledger(path))
+    assert lines == [
+        "T               stage                    4/5 done",
+        "4 of 5 jobs done, 1 left",
+    ]
+
+
+def test_the_digest_follows_every_field_of_the_config():
+    fn = Recorder()
+    job = Job("T", "stage", fn, Step("a"))
+    assert job.digest == Job("T", "other name", fn, Step("a")).digest
+    assert job.digest != dataclasses.replace(job, config=Step("a", 1)).digest
+
+
+def test_a_corrupt_ledger_is_named_in_one_line(tmp_path, caplog, capsys):
+    (tmp_path / LEDGER).write_text("{not json")
+    status, errors, _ = aed(["experiments", "--plan", "--runs", str(tmp_path)], caplog, capsys)
+    assert status == 2 and len(errors) == 1 and f"{Path(tmp_path / LEDGER)}: corrupt" in errors[0]
+    (tmp_path / LEDGER).write_text("[]")
+    status, errors, _ = aed(["experiments", "--plan", "--runs", str(tmp_path)], caplog, capsys)
+    assert status == 2 and "not an experiments ledger" in errors[0]
+
+
+def test_unknown_or_repeated_tasks_are_refused():
+    with pytest.raises(ValueError, match="Nope"):
+        ExperimentsConfig(tasks=("Nope",))
+    with pytest.raises(ValueError, match="named twice"):
+        ExperimentsConfig(tasks=("PickPlace", "PickPlace"))
