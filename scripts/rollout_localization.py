@@ -3,7 +3,9 @@ frame against the object's true position, the TCP's closest approach to it, and 
 
 Splits the rollouts into those whose located target lies within `--near` of the object and the
 rest, with the success count of each: a policy that fails where it was told the right place
-fails at control, one that fails only where the localizer missed fails at localization.
+fails at control, one that fails only where the localizer missed fails at localization. For a
+failure at control, where its stage-target head aimed when the TCP came closest tells whether
+it aimed wrong (the head) or did not get where it aimed (the actor).
 
     python scripts/rollout_localization.py --policy runs/PressButton/policies/scan/policy.pt \
         --rollouts runs/PressButton/rollouts/scan/novel --demos runs/PressButton/data/novel
@@ -22,8 +24,9 @@ import torch
 import tyro
 
 from aed_eval.scoring import Demonstrations
-from aed_models.data import EpisodeReader
+from aed_models.data import EpisodeReader, FrameSequence, pad_sequences
 from aed_models.policies import load_policy
+from aed_models.policies.base import SUBGOAL_SCALE_M
 from aed_tasks import trajectory
 
 ERROR_BINS_CM = (0, 1, 2, 3, 5, 10, float("inf"))  # the located error's bins of the success split
@@ -52,11 +55,13 @@ def main(cfg: Config) -> dict:
     refs = list(trajectory.scan_collection(cfg.rollouts).episodes())
     demos = Demonstrations(cfg.demos, refs[0].split, cfg.num_demos)
     reader = EpisodeReader()
-    located, approach, success, envs = [], [], [], []
+    located, approach, success, envs, aimed = [], [], [], [], []
     for ref in sorted(refs, key=lambda r: r.env_index):
+        sequence = reader.read(ref)
         point = policy.localizer.locate(
-            reader.read(ref, np.array([0])).frames, policy.demo_queries(demos[ref.env_index])
+            sequence.frames[:1], policy.demo_queries(demos[ref.env_index])
         )[0, 0].numpy()
+        predicted = stage_targets(policy, sequence, demos[ref.env_index])
         with h5py.File(ref.path, "r") as h5:
             group = h5[ref.traj]
             states = group["env_states"]
@@ -64,10 +69,13 @@ def main(cfg: Config) -> dict:
             xy = states[kind][cfg.target][0, :2]
             tcp = group["obs/extra/tcp_pose"][()][:, :2]
         located.append(float(np.linalg.norm(point[:2] - xy)))
-        approach.append(float(np.linalg.norm(tcp - xy, axis=1).min()))
+        distance = np.linalg.norm(tcp - xy, axis=1)
+        approach.append(float(distance.min()))
+        closest = int(distance.argmin())
+        aimed.append(float(np.linalg.norm(predicted[min(closest, len(predicted) - 1)] - xy)))
         success.append(bool(ref.success))
         envs.append(ref.env_index)
-    located, approach, success = map(np.asarray, (located, approach, success))
+    located, approach, success, aimed = map(np.asarray, (located, approach, success, aimed))
     near = located < cfg.near
     result = {
         "rollouts": len(refs),
@@ -77,6 +85,9 @@ def main(cfg: Config) -> dict:
         "missed": {"rollouts": int((~near).sum()), "successes": int(success[~near].sum())},
         "failures_found_closest_approach_cm": sorted(
             round(100 * a, 1) for a in approach[near & ~success]
+        ),
+        "failures_found_aimed_at_closest_cm": sorted(
+            round(100 * a, 1) for a in aimed[near & ~success]
         ),
         "by_located_error_cm": {
             f"{low:g}-{high:g}": {
@@ -91,13 +102,27 @@ def main(cfg: Config) -> dict:
                 "env_index": e,
                 "located_cm": round(100 * x, 2),
                 "closest_cm": round(100 * a, 2),
+                "aimed_at_closest_cm": round(100 * t, 2),
                 "success": bool(ok),
             }
-            for e, x, a, ok in zip(envs, located, approach, success, strict=True)
+            for e, x, a, t, ok in zip(envs, located, approach, aimed, success, strict=True)
         ],
     }
     print(json.dumps(result, indent=1))
     return result
+
+
+@torch.no_grad()
+def stage_targets(policy: torch.nn.Module, sequence: FrameSequence, demos: dict) -> np.ndarray:
+    """(T, 2) where the policy's stage-target head puts the current stage's end at each frame
+    (TCP + predicted offset; horizontal), run on the rollout's own frames as online; NaN for a
+    policy without that head."""
+    if policy.subgoal_head is None:
+        return np.full((1, 2), np.nan)
+    rollout = pad_sequences([sequence])
+    subgoal = policy(rollout, demos)["subgoal"][0]
+    tcp = rollout["proprio"][0, :, :3]
+    return (tcp + SUBGOAL_SCALE_M * subgoal)[:, :2].numpy()
 
 
 if __name__ == "__main__":

@@ -296,6 +296,7 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
     assert sum(b["rollouts"] for b in bins.values()) == 48
     per_rollout = diagnosis["per_rollout"]
     assert len(per_rollout) == 48 and all(r["success"] for r in per_rollout)
+    assert all(np.isfinite(r["aimed_at_closest_cm"]) for r in per_rollout)  # it has the head
     assert sum(r["located_cm"] < 3 for r in per_rollout) == found["rollouts"]
     missing = dataclasses.replace(cfg, out=tmp_path / "x", localizer=tmp_path / "missing.pt")
     with pytest.raises(FileNotFoundError, match="aed train-localizer"):
