@@ -152,20 +152,18 @@ def config_record(cfg: Any) -> dict[str, Any]:
 
 
 @dataclass(kw_only=True)
-class TaskModelTraining:
-    """What to train once per task before its policies (the mini scene encoder, the target
-    localizer), on the task's base collection; a subclass adds its recipe's fields (build it
-    with `from_preset`).
+class TrainingRun:
+    """What every training names beside its recipe: the task, the preset, its data and folder.
 
     Args:
         task: task name (e.g. PressButton).
-        profile: the preset of the model's size and recipe (mini, demo).
+        profile: the preset of the model's sizes and of the recipe (mini, paper, demo).
         data: collection folder.
         out: output folder (checkpoints and log).
         num_envs: use the first N base environments (0: all).
         seed: seeds the model, the draws and the augmentation.
         resume: continue from <out>/last.pt when it exists.
-        progress: show a progress bar.
+        progress: show progress bars.
     """
 
     task: str
@@ -177,17 +175,28 @@ class TaskModelTraining:
     resume: bool = True
     progress: bool = True
 
+    def __post_init__(self) -> None:
+        super().__post_init__()  # the recipe's checks
+        check_profile(self.profile)
+        if self.num_envs < 0:
+            raise ValueError(f"num_envs={self.num_envs}: must be >= 0")
+        self.data, self.out = Path(self.data), Path(self.out)
+
+
+@dataclass(kw_only=True)
+class TaskModelTraining(TrainingRun):
+    """What to train once per task before its policies (the mini scene encoder, the target
+    localizer), on the task's base collection; a subclass names its recipe (build it with
+    `from_preset`)."""
+
     recipe: ClassVar[type[Recipe]]  # the recipe whose preset fills the other fields
     layout_name: ClassVar[str]  # the `RunLayout` method naming the final checkpoint
     not_in_paper: ClassVar[str]  # why the paper profile has no such model
 
     def __post_init__(self) -> None:
-        super().__post_init__()  # the recipe's checks
-        if check_profile(self.profile) == "paper":
+        super().__post_init__()
+        if self.profile == "paper":
             raise ValueError(f"profile='paper': {self.not_in_paper}")
-        if self.num_envs < 0:
-            raise ValueError(f"num_envs={self.num_envs}: must be >= 0")
-        self.data, self.out = Path(self.data), Path(self.out)
 
     @classmethod
     def from_preset(

@@ -28,9 +28,10 @@ from aed_models.data import Composition, EnvironmentIterations
 from aed_models.detectors import DETECTORS, FAMILY, make_detector, requires_policy
 from aed_models.detectors.base import to_device
 from aed_models.layout import RunLayout
-from aed_models.recipe import DetectorRecipe, Profile, check_profile
+from aed_models.recipe import DetectorRecipe
 from aed_models.train.common import (
     TrainingFolder,
+    TrainingRun,
     check_task,
     config_record,
     data_key,
@@ -46,53 +47,35 @@ logger = logging.getLogger(__name__)
 
 
 @dataclass
-class TrainDetectorConfig(DetectorRecipe):
+class TrainDetectorConfig(TrainingRun, DetectorRecipe):
     """Training of one error detector on one task's base-split collection: the recipe's fields
     (epochs, lr, weight_decay, max_frames, composition) and what to train. Build it with
     `from_preset`, which fills the recipe of (detector, profile, task) and the layout's paths.
 
     Args:
-        task: task name (e.g. PressButton).
         detector: svdd_ed, taskemb_ed, lstm_ed, dct_ed, probe or rnd_oe.
-        profile: the preset of the model's sizes and of the recipe (mini, paper, demo).
-        data: collection folder.
-        out: output folder (checkpoints and log).
         policy: the frozen policy's checkpoint (probe, rnd_oe only; None for the others).
         augment: rollout augmentation (paper: on; off for the ablation).
-        num_envs: use the first N base environments (0: all).
-        seed: seeds the model, the draws and the augmentation.
-        resume: continue from <out>/last.pt when it exists.
-        progress: show progress bars.
         device: torch device of the detector (and of the policy while features are cached).
         workers: DataLoader worker processes (0 = read in the main process).
     """
 
-    task: str
     detector: str
-    profile: Profile
-    data: Path
-    out: Path
     policy: str | None = None
     augment: bool = True
-    num_envs: int = 0
-    seed: int = 0
-    resume: bool = True
-    progress: bool = True
     device: str = "cpu"
     workers: int = 0
 
     def __post_init__(self) -> None:
         super().__post_init__()
         DETECTORS.check(self.detector)
-        check_profile(self.profile)
         if requires_policy(self.detector) and not self.policy:
             raise ValueError(
                 f"policy=None: detector {self.detector!r} reads a policy's features; "
                 "name the policy"
             )
-        if self.num_envs < 0 or self.workers < 0:
-            raise ValueError(f"num_envs={self.num_envs}, workers={self.workers}: must be >= 0")
-        self.data, self.out = Path(self.data), Path(self.out)
+        if self.workers < 0:
+            raise ValueError(f"workers={self.workers}: must be >= 0")
 
     @classmethod
     def from_preset(

@@ -29,9 +29,10 @@ from aed_models.checkpoint import Checkpoint
 from aed_models.data import Composition, EnvironmentIterations
 from aed_models.layout import RunLayout
 from aed_models.policies import FAMILY, POLICIES, PolicyConfig, make_policy
-from aed_models.recipe import PolicyRecipe, Profile, check_profile
+from aed_models.recipe import PolicyRecipe
 from aed_models.train.common import (
     TrainingFolder,
+    TrainingRun,
     check_task,
     config_record,
     data_key,
@@ -48,37 +49,21 @@ logger = logging.getLogger(__name__)
 
 
 @dataclass
-class TrainPolicyConfig(PolicyRecipe):
+class TrainPolicyConfig(TrainingRun, PolicyRecipe):
     """Behaviour cloning of one policy on one task's base-split collection: the recipe's fields
     (epochs, lr, weight_decay, max_frames, composition, rollout_frames, shift) and what to train.
     Build it with `from_preset`, which fills the recipe of (policy, profile, task) and the
     paths of the runs layout.
 
     Args:
-        task: task name (e.g. PressButton).
         policy: naive_dc, dct or scan.
-        profile: the preset of the model's sizes and of the recipe (mini, paper, demo).
-        data: collection folder.
-        out: output folder (checkpoints and log).
-        num_envs: use the first N base environments (0: all).
-        seed: seeds the model, the draws and the augmentation.
-        resume: continue from <out>/last.pt when it exists.
-        progress: show a progress bar.
         device: torch device.
         workers: DataLoader worker processes (0 = read in the main process).
         encoder: the scene encoder checkpoint a `frozen_encoder` policy starts from.
         localizer: the target localizer checkpoint a policy with a `localizer` reads, frozen.
     """
 
-    task: str
     policy: str
-    profile: Profile
-    data: Path
-    out: Path
-    num_envs: int = 0
-    seed: int = 0
-    resume: bool = True
-    progress: bool = True
     device: str = "cpu"
     workers: int = 0
     encoder: Path = Path("runs/PressButton/encoder/encoder.pt")
@@ -87,10 +72,8 @@ class TrainPolicyConfig(PolicyRecipe):
     def __post_init__(self) -> None:
         super().__post_init__()
         POLICIES.check(self.policy)
-        check_profile(self.profile)
-        if self.num_envs < 0 or self.workers < 0:
-            raise ValueError(f"num_envs={self.num_envs}, workers={self.workers}: must be >= 0")
-        self.data, self.out = Path(self.data), Path(self.out)
+        if self.workers < 0:
+            raise ValueError(f"workers={self.workers}: must be >= 0")
         self.encoder, self.localizer = Path(self.encoder), Path(self.localizer)
 
     @classmethod
