@@ -27,20 +27,11 @@ import tyro
 from aed_eval.checks import task_class
 from aed_models.layout import RunLayout
 from aed_models.recipe import Profile, check_profile
-from aed_tasks import trajectory
+from aed_tasks import PAPER_TASK_ORDER, trajectory
 from aed_tasks.locks import folder_lock
 
 logger = logging.getLogger(__name__)
 
-PAPER_TASKS = (
-    "CloseDrawer",
-    "PressButton",
-    "PickPlace",
-    "MoveGlassCup",
-    "OrganizeTable",
-    "BackToBox",
-    "FactoryPacking",
-)  # the paper's order
 LEDGER = "experiments.json"
 
 
@@ -59,7 +50,7 @@ class ExperimentsConfig:
     """
 
     profile: Profile = "mini"
-    tasks: tuple[str, ...] = PAPER_TASKS
+    tasks: tuple[str, ...] = PAPER_TASK_ORDER
     runs: Path | None = None
     plan: bool = False
     workers: int = 2

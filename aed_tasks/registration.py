@@ -21,6 +21,15 @@ from aed_tasks.assets import SPLITS
 from aed_tasks.base_env import AEDBaseEnv
 
 TASKS: dict[str, type[AEDBaseEnv]] = {}
+PAPER_TASK_ORDER = (
+    "CloseDrawer",
+    "PressButton",
+    "PickPlace",
+    "MoveGlassCup",
+    "OrganizeTable",
+    "BackToBox",
+    "FactoryPacking",
+)  # the seven tasks in the paper's order (its tables' columns)
 
 
 class EpisodeTimeLimit(gym.Wrapper, gym.utils.RecordConstructorArgs):

@@ -18,16 +18,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from aed_tasks import PAPER_TASK_ORDER
+
 STORED = Path(__file__).with_name("fixtures") / "fingerprint.json"
-TASKS = (
-    "CloseDrawer",
-    "PressButton",
-    "PickPlace",
-    "MoveGlassCup",
-    "OrganizeTable",
-    "BackToBox",
-    "FactoryPacking",
-)
+TASKS = PAPER_TASK_ORDER
 PROFILES = ("mini", "paper")
 # The demo's profiles then -> the presets now: `aed demo --profile mini` ran the demo's counts
 # with mini models, which is now the `demo` preset.

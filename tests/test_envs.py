@@ -32,6 +32,9 @@ def test_ids_follow_the_naming_contract():
     assert set(ALL_TASKS) == EXPECTED_TASKS, (
         "a task stopped registering, or a new one is not listed here"
     )
+    assert (
+        len(aed_tasks.PAPER_TASK_ORDER) == 7 and set(aed_tasks.PAPER_TASK_ORDER) == EXPECTED_TASKS
+    )
     for task in ALL_TASKS:
         assert f"AED-{task}-base" in ALL_IDS and f"AED-{task}-novel" in ALL_IDS
         assert gym.spec(f"AED-{task}-novel").kwargs["split"] == "novel"

@@ -11,7 +11,6 @@ import pytest
 
 from aed_eval.experiments import (
     LEDGER,
-    PAPER_TASKS,
     ExperimentsConfig,
     Job,
     Ledger,
@@ -19,12 +18,13 @@ from aed_eval.experiments import (
     run_jobs,
     status_lines,
 )
+from aed_tasks import PAPER_TASK_ORDER
 from tests.helpers import aed
 
 
 def test_the_main_experiment_plans_every_task_in_the_protocols_order(tmp_path):
     jobs = plan_jobs(ExperimentsConfig(profile="mini", runs=tmp_path))
-    assert [j.task for j in jobs][:: len(jobs) // 7] == list(PAPER_TASKS)
+    assert [j.task for j in jobs][:: len(jobs) // 7] == list(PAPER_TASK_ORDER)
     stages = [j.stage for j in jobs if j.task == "PickPlace"]
     assert stages[0] == "collect base split" and stages[-1] == "evaluate"
     assert stages.count("train policies") == 3 and stages.count("evaluate") == 3
