@@ -58,10 +58,11 @@ def main(cfg: Config) -> dict:
     located, approach, success, envs, aimed = [], [], [], [], []
     for ref in sorted(refs, key=lambda r: r.env_index):
         sequence = reader.read(ref)
-        point = policy.localizer.locate(
+        points = policy.localizer.locate(
             sequence.frames[:1], policy.demo_queries(demos[ref.env_index])
-        )[0, 0].numpy()
-        predicted = stage_targets(policy, sequence, demos[ref.env_index])
+        )
+        point = points[0, 0].numpy()
+        predicted = stage_targets(policy, sequence, demos[ref.env_index], points)
         with h5py.File(ref.path, "r") as h5:
             group = h5[ref.traj]
             states = group["env_states"]
@@ -72,7 +73,9 @@ def main(cfg: Config) -> dict:
         distance = np.linalg.norm(tcp - xy, axis=1)
         approach.append(float(distance.min()))
         closest = int(distance.argmin())
-        aimed.append(float(np.linalg.norm(predicted[min(closest, len(predicted) - 1)] - xy)))
+        aimed.append(
+            float("nan") if predicted is None else float(np.linalg.norm(predicted[closest] - xy))
+        )
         success.append(bool(ref.success))
         envs.append(ref.env_index)
     located, approach, success, aimed = map(np.asarray, (located, approach, success, aimed))
@@ -113,14 +116,17 @@ def main(cfg: Config) -> dict:
 
 
 @torch.no_grad()
-def stage_targets(policy: torch.nn.Module, sequence: FrameSequence, demos: dict) -> np.ndarray:
+def stage_targets(
+    policy: torch.nn.Module, sequence: FrameSequence, demos: dict, points: torch.Tensor
+) -> np.ndarray | None:
     """(T, 2) where the policy's stage-target head puts the current stage's end at each frame
-    (TCP + predicted offset; horizontal), run on the rollout's own frames as online; NaN for a
-    policy without that head."""
+    (TCP + predicted offset; horizontal), run on the rollout's own frames as online, given the
+    points located in its first frame (1, K, 3); None for a policy without that head."""
     if policy.subgoal_head is None:
-        return np.full((1, 2), np.nan)
+        return None
     rollout = pad_sequences([sequence])
-    subgoal = policy(rollout, demos)["subgoal"][0]
+    located = points.flatten(1)[:, None].expand(-1, rollout["mask"].shape[1], -1)
+    subgoal = policy({**rollout, "located": located}, demos)["subgoal"][0]
     tcp = rollout["proprio"][0, :, :3]
     return (tcp + SUBGOAL_SCALE_M * subgoal)[:, :2].numpy()
 
