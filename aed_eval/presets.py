@@ -5,7 +5,7 @@ and training recipes are the models' own: `aed_models.recipe`).
 - `paper`: the paper's protocol (every environment, 5 demonstrations, 20 successes and 20
   failures per base environment, 20 rollouts per novel environment), for a GPU machine;
 - `mini`: CPU-sized counts for one task's experiments;
-- `demo`: what `aed demo` runs end to end in about 15 minutes on two cores.
+- `demo`: what `aed demo` runs end to end in under 20 minutes on two cores.
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ PROTOCOLS: dict[str, Protocol] = {
         num_successes=4,
         num_failures=3,
         num_explore=6,
-        labelled=1,
+        labelled=3,
         rollouts=4,
         calibration_rollouts=4,
         policies=("dct",),
