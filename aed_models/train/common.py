@@ -40,6 +40,7 @@ RESUME_FIELDS = (
     "profile",
     "data",
     "num_envs",
+    "num_successes",
     "seed",
     "lr",
     "weight_decay",
@@ -102,6 +103,25 @@ def select_environments(episodes: list, num_envs: int) -> list:
         return episodes
     keep = set(sorted({e.env_index for e in episodes})[:num_envs])
     return [e for e in episodes if e.env_index in keep]
+
+
+def select_successes(episodes: list, num_successes: int) -> list:
+    """Keep each environment's first `num_successes` agent successes in collection order (0:
+    all); every other episode stays. How a training-data curve takes a prefix of one
+    collection."""
+    if not num_successes:
+        return episodes
+    order = sorted(
+        (e for e in episodes if e.role == "agent_success"),
+        key=lambda e: (e.env_index, e.path.name, int(e.traj.rsplit("_", 1)[1])),
+    )
+    seen: dict[int, int] = defaultdict(int)
+    keep = set()
+    for e in order:
+        if seen[e.env_index] < num_successes:
+            seen[e.env_index] += 1
+            keep.add((e.path, e.traj))
+    return [e for e in episodes if e.role != "agent_success" or (e.path, e.traj) in keep]
 
 
 def trained_on(episodes: list) -> dict[str, Any]:

@@ -38,6 +38,7 @@ from aed_models.train.common import (
     data_key,
     run_epoch,
     seed_everything,
+    select_successes,
     task_episodes,
     trained_on,
 )
@@ -61,6 +62,7 @@ class TrainPolicyConfig(TrainingRun, PolicyRecipe):
         workers: DataLoader worker processes (0 = read in the main process).
         encoder: the scene encoder checkpoint a `frozen_encoder` policy starts from.
         localizer: the target localizer checkpoint a policy with a `localizer` reads, frozen.
+        num_successes: use each environment's first N agent successes (0: all).
     """
 
     policy: str
@@ -68,10 +70,13 @@ class TrainPolicyConfig(TrainingRun, PolicyRecipe):
     workers: int = 0
     encoder: Path = Path("runs/PressButton/encoder/encoder.pt")
     localizer: Path = Path("runs/PressButton/localizer/localizer.pt")
+    num_successes: int = 0
 
     def __post_init__(self) -> None:
         super().__post_init__()
         POLICIES.check(self.policy)
+        if self.num_successes < 0:
+            raise ValueError(f"num_successes={self.num_successes}: must be >= 0")
         if self.workers < 0:
             raise ValueError(f"workers={self.workers}: must be >= 0")
         self.encoder, self.localizer = Path(self.encoder), Path(self.localizer)
@@ -196,7 +201,7 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
     seed_everything(cfg.seed)
 
     # data
-    episodes = task_episodes(cfg.data, cfg.num_envs)
+    episodes = select_successes(task_episodes(cfg.data, cfg.num_envs), cfg.num_successes)
     check_task(episodes, cfg.task, cfg.data)
 
     # model, with the scene encoder as its frozen visual head when the config says so

@@ -4,6 +4,7 @@ training (loss falls, resume is exact) on small synthetic collections."""
 from __future__ import annotations
 
 import json
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -299,6 +300,29 @@ def test_training_loss_falls(collection, tmp_path):
     assert log[-1]["pos_mse"] < 0.7 * log[0]["pos_mse"], log
     policy = load_policy(final)
     assert not policy.training and torch.allclose(policy.action_mean[2], torch.tensor(0.0))
+
+
+def test_num_successes_keeps_each_environments_first_agent_successes(collection, tmp_path):
+    from aed_models.train.common import select_successes, task_episodes
+
+    episodes = task_episodes(collection, 0)
+    kept = select_successes(episodes, 3)
+    successes = [e for e in kept if e.role == "agent_success"]
+    assert sorted(Counter(e.env_index for e in successes).values()) == [3, 3, 3, 3]
+    assert {e.traj for e in successes} == {"traj_0", "traj_1", "traj_2"}
+    assert [e for e in kept if e.role == "demo"] == [e for e in episodes if e.role == "demo"]
+    assert select_successes(episodes, 0) == episodes == select_successes(episodes, 99)
+    with pytest.raises(ValueError, match="num_successes=-1: must be >= 0"):
+        train_config(collection, tmp_path / "x", num_successes=-1)
+    train_policy(
+        train_config(collection, tmp_path / "run", policy="dct", epochs=1, num_successes=2),
+        tiny_config("dct"),
+    )
+    with pytest.raises(ValueError, match="trained with num_successes=2, this run asks 4"):
+        train_policy(
+            train_config(collection, tmp_path / "run", policy="dct", epochs=2, num_successes=4),
+            tiny_config("dct"),
+        )
 
 
 def test_resume_gives_the_same_weights(collection, tmp_path):
