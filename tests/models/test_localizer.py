@@ -207,13 +207,15 @@ def test_located_points_of_the_agent_episodes(localizer_path, collections):
     located = located_points(localizer, episodes, num_demos=3)
     agents = [e for e in episodes if e.role == "agent_success"]
     assert sorted(located) == sorted((str(e.path), e.traj) for e in agents)
+    targets = [stage_episode(e, 1, "front").points[0, :2] for e in agents]
     errors = [
-        np.linalg.norm(
-            located[str(e.path), e.traj][0, :2] - stage_episode(e, 1, "front").points[0, :2]
-        )
-        for e in agents
+        np.linalg.norm(located[str(e.path), e.traj][0, :2] - t)
+        for e, t in zip(agents, targets, strict=True)
     ]
-    assert np.median(errors) < 0.05, errors  # in its training environments
+    guesses = [np.linalg.norm(t) for t in targets]  # the training mean's guess, the centre
+    # in its training environments, well inside the spread (the margin holds across torch's
+    # thread counts, whose float sums differ)
+    assert np.median(errors) < 0.5 * np.median(guesses), (errors, guesses)
 
 
 def test_localizer_training_resumes_to_the_same_weights(collections, tmp_path):
