@@ -323,6 +323,13 @@ def test_num_successes_keeps_each_environments_first_agent_successes(collection,
             train_config(collection, tmp_path / "run", policy="dct", epochs=2, num_successes=4),
             tiny_config("dct"),
         )
+    # the lever table reads what each checkpoint trained on (the collection as its "rollouts")
+    table = load_script("lever_table")
+    spec = f"two={tmp_path / 'run' / 'policy.pt'}:{collection}"
+    rows = table.main(table.Config(baseline=spec, out=tmp_path / "t.json"))
+    assert rows[0]["successes_per_env"] == [2] and rows[0]["train_envs"] == 4
+    assert rows[0]["only_baseline"] == rows[0]["only_this"] == 0
+    assert json.loads((tmp_path / "t.json").read_text())["rows"] == rows
 
 
 def test_resume_gives_the_same_weights(collection, tmp_path):

@@ -1,0 +1,143 @@
+"""One policy's variants on the same novel rollout seeds: a lever, or a training-data curve.
+
+Each variant is a checkpoint and the folder `aed rollout` wrote with it (same environments and
+rollout seed as the baseline's). A row gives what the variant trained on (environments, agent
+successes per environment, epochs, seconds), its action loss, its novel success rate with its
+interval, and, paired with the baseline on (environment, rollout seed), how many rollouts only
+one of the two succeeded in. Writes JSON (one record per variant) and a Markdown table:
+
+    R=runs/r20/PressButton
+    python scripts/lever_table.py --title "SCAN, agent successes per environment" \
+        --baseline "10=$R/policies/scan/policy.pt:$R/rollouts/scan/novel" \
+        --variants "2=$R/policies_curve/succ2/policy.pt:$R/rollouts_curve/succ2" \
+        --out results/mini/levers/PressButton_scan_successes.json
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import tyro
+
+from aed_eval.metrics import rate_interval
+from aed_models.train.common import select_successes, task_episodes
+from aed_tasks import trajectory
+
+logger = logging.getLogger("lever_table")
+
+
+@dataclass
+class Config:
+    baseline: str
+    """`label=checkpoint:rollouts` of the variant the others are paired with."""
+    variants: tuple[str, ...] = ()
+    """`label=checkpoint:rollouts` of each other variant."""
+    title: str = ""
+    """The table's heading."""
+    out: Path = Path("results/mini/levers/lever.json")
+    """JSON records; the Markdown table goes beside it (.md)."""
+
+
+def parse(spec: str) -> tuple[str, Path, Path]:
+    label, sep, paths = spec.partition("=")
+    checkpoint, sep2, rollouts = paths.rpartition(":")
+    if not (sep and sep2 and label and checkpoint and rollouts):
+        raise SystemExit(f"{spec!r}: expected label=checkpoint:rollouts")
+    return label, Path(checkpoint), Path(rollouts)
+
+
+def outcomes(rollouts: Path) -> dict[tuple[int, int], bool]:
+    """Success of every rollout, keyed by (environment, rollout seed)."""
+    return {
+        (r.env_index, r.seed): r.success for r in trajectory.scan_collection(rollouts).episodes()
+    }
+
+
+def training(checkpoint: Path) -> dict:
+    """What a checkpoint trained on and how its action loss moved (first and last 5 epochs)."""
+    if not checkpoint.is_file():
+        raise SystemExit(f"{checkpoint}: no such checkpoint")
+    extra = torch.load(checkpoint, weights_only=True, map_location="cpu")["extra"]
+    cfg, log = extra["train_config"], extra["log"]
+    episodes = select_successes(
+        task_episodes(Path(cfg["data"]), cfg["num_envs"]), cfg.get("num_successes", 0)
+    )
+    per_env = Counter(e.env_index for e in episodes if e.role == "agent_success")
+    first, last = log[: min(5, len(log))], log[-min(5, len(log)) :]
+    return {
+        "policy": cfg["policy"],
+        "seed": cfg["seed"],
+        "train_envs": len(extra.get("train_envs", [])),
+        "successes_per_env": sorted(set(per_env.values())),
+        "demos_per_env": max(Counter(e.env_index for e in episodes if e.role == "demo").values()),
+        "epochs": len(log),
+        "updates": len(log) * len(extra.get("train_envs", [])),
+        "train_seconds": round(sum(e["seconds"] for e in log), 1),
+        "pos_mse_first": float(np.mean([e["pos_mse"] for e in first])),
+        "pos_mse_last": float(np.mean([e["pos_mse"] for e in last])),
+    }
+
+
+def record(label: str, checkpoint: Path, rollouts: Path, base: dict) -> dict:
+    mine = outcomes(rollouts)
+    if set(mine) != set(base):
+        raise SystemExit(
+            f"{rollouts}: {len(mine)} rollouts on other (environment, seed) pairs than the "
+            f"baseline's {len(base)}; roll out with the same --num-envs, --num-episodes, --seed"
+        )
+    values = np.asarray(list(mine.values()), dtype=float)  # the order policy_table.py reads
+    low, high = rate_interval(values)
+    return {
+        "label": label,
+        "checkpoint": str(checkpoint),
+        "rollouts_folder": str(rollouts),
+        **training(checkpoint),
+        "rollouts": len(values),
+        "successes": int(values.sum()),
+        "success_rate": float(values.mean()),
+        "interval": [float(low), float(high)],
+        "only_baseline": sum(base[k] and not mine[k] for k in mine),
+        "only_this": sum(mine[k] and not base[k] for k in mine),
+    }
+
+
+def markdown(title: str, rows: list[dict]) -> str:
+    lines = [
+        f"{title}\n" if title else "",
+        "| variant | environments x agent successes | epochs (updates) | epochs' time "
+        "| action loss (share of variance), first -> last 5 epochs "
+        "| novel success rate [95%] | only baseline / only this |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        per_env = "-".join(str(n) for n in r["successes_per_env"])
+        lines.append(
+            f"| {r['label']} | {r['train_envs']} x {per_env} | {r['epochs']} ({r['updates']}) "
+            f"| {r['train_seconds']:.0f} s | {r['pos_mse_first']:.2f} -> {r['pos_mse_last']:.2f} "
+            f"| {100 * r['success_rate']:.1f}% [{100 * r['interval'][0]:.1f}, "
+            f"{100 * r['interval'][1]:.1f}] ({r['successes']}/{r['rollouts']}) "
+            f"| {r['only_baseline']} / {r['only_this']} |"
+        )
+    return "\n".join(line for line in lines if line) + "\n"
+
+
+def main(cfg: Config) -> list[dict]:
+    specs = [parse(cfg.baseline), *(parse(v) for v in cfg.variants)]
+    base = outcomes(specs[0][2])
+    rows = [record(label, ckpt, folder, base) for label, ckpt, folder in specs]
+    cfg.out.parent.mkdir(parents=True, exist_ok=True)
+    cfg.out.write_text(json.dumps({"title": cfg.title, "rows": rows}, indent=1) + "\n")
+    cfg.out.with_suffix(".md").write_text(markdown(cfg.title, rows))
+    print(markdown(cfg.title, rows))
+    return rows
+
+
+if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    main(tyro.cli(Config))
