@@ -179,6 +179,8 @@ class FrameSequence:
     subgoal: torch.Tensor | None = None  # (L, 3) float32
     features: torch.Tensor | None = None  # (L, D) float32: a frozen visual head's, cached
     located: torch.Tensor | None = None  # (L, 3K) float32: the localizer's points, repeated
+    action_chunks: torch.Tensor | None = None  # (L, C, A) float32: the actions from each frame on
+    chunk_valid: torch.Tensor | None = None  # (L, C) bool: which of them the episode has
 
     def __len__(self) -> int:
         return len(self.source)
@@ -217,10 +219,16 @@ class EpisodeReader:
         return self._files[path]
 
     def read(
-        self, ref: trajectory.EpisodeRef, indices: np.ndarray | None = None, images: bool = True
+        self,
+        ref: trajectory.EpisodeRef,
+        indices: np.ndarray | None = None,
+        images: bool = True,
+        chunk: int = 1,
     ) -> FrameSequence:
         """Frames `indices` (default: all T + 1) of one episode, in that order (repeats allowed);
-        `images=False` reads everything but the images."""
+        `images=False` reads everything but the images. `chunk` > 1 also gives, for each frame,
+        the episode's next `chunk` actions from it (`action_chunks`, `chunk_valid`), whichever
+        frames were read."""
         h5 = self._file(ref.path)
         group = h5[ref.traj]
         if indices is None:
@@ -237,8 +245,16 @@ class EpisodeReader:
             rgb = _read_rows(camera["rgb"], unique)[inverse]
             depth = _read_rows(camera["depth"], unique)[inverse]
         labels = frame_labels(group["error_label"][()]).astype(np.float32)[indices]
-        actions = group["actions"][()].astype(np.float32)
-        actions = np.concatenate([actions, np.zeros((1, actions.shape[1]), np.float32)])[indices]
+        recorded = group["actions"][()].astype(np.float32)
+        actions = np.concatenate([recorded, np.zeros((1, recorded.shape[1]), np.float32)])[indices]
+        action_chunks = chunk_valid = None
+        if chunk > 1:
+            later = indices[:, None] + np.arange(chunk)[None]  # (L, C)
+            valid = later < len(recorded)
+            action_chunks = torch.from_numpy(
+                recorded[later.clip(max=len(recorded) - 1)] * valid[..., None]
+            )
+            chunk_valid = torch.from_numpy(valid)
         proprio = subgoal = None
         if (
             "obs/extra/tcp_pose" in group and "obs/agent/qpos" in group
@@ -259,6 +275,8 @@ class EpisodeReader:
             ref,
             proprio,
             subgoal,
+            action_chunks=action_chunks,
+            chunk_valid=chunk_valid,
         )
 
     def close(self) -> None:
@@ -283,7 +301,8 @@ def _read_rows(dataset: Any, rows: np.ndarray) -> np.ndarray:
 def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
     """Pad to the longest: frames (B, L, 4, H, W), labels (B, L), actions (B, L, A), lengths (B,),
     mask (B, L), source (B, L) (each frame's index in its episode), and proprio
-    (B, L, PROPRIO_DIM), subgoal (B, L, 3) and located (B, L, 3K) when every sequence has them.
+    (B, L, PROPRIO_DIM), subgoal (B, L, 3), located (B, L, 3K) and action_chunks (B, L, C, A)
+    with chunk_valid (B, L, C) when every sequence has them.
     Sequences read without images give their cached `features` (B, L, D) instead of frames."""
     if not seqs:
         return {}
@@ -310,9 +329,11 @@ def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
             to_frames(s.rgb, s.depth, out=frames[i, : len(s)])
             frames[i, len(s) :] = 0.0
         batch["frames"] = frames
-    for key in ("features", "proprio", "subgoal", "located"):
+    for key in ("features", "proprio", "subgoal", "located", "action_chunks", "chunk_valid"):
         if all(getattr(s, key) is not None for s in seqs):
-            batch[key] = torch.zeros(len(seqs), longest, getattr(seqs[0], key).shape[-1])
+            shape, dtype = getattr(seqs[0], key).shape[1:], getattr(seqs[0], key).dtype
+            dtype = torch.bool if dtype == torch.bool else torch.float32
+            batch[key] = torch.zeros(len(seqs), longest, *shape, dtype=dtype)
             for i, s in enumerate(seqs):
                 batch[key][i, : len(s)] = getattr(s, key)
     return batch
@@ -351,6 +372,8 @@ class EnvironmentIterations(Dataset):
             features (T + 1, D): sequences then carry them instead of images.
         located: per agent episode (same keys), where a target localizer placed its stage
             targets (K, 3): its sequences carry them at every frame (`located`).
+        action_chunk: agent sequences also carry each frame's next `action_chunk` actions
+            (`action_chunks`, `chunk_valid`), for a policy that predicts them (1: none).
     """
 
     def __init__(
@@ -365,6 +388,7 @@ class EnvironmentIterations(Dataset):
         rollout_frames: Literal["even", "random"] = "even",
         features: Mapping[tuple[str, str], np.ndarray] | None = None,
         located: Mapping[tuple[str, str], np.ndarray] | None = None,
+        action_chunk: int = 1,
     ):
         if isinstance(composition, str):
             if composition not in COMPOSITIONS:
@@ -381,6 +405,9 @@ class EnvironmentIterations(Dataset):
         self.seed = seed
         self.features = features
         self.located = located
+        if action_chunk < 1:
+            raise ValueError(f"action_chunk={action_chunk}: must be >= 1")
+        self.action_chunk = action_chunk
         self.reader = EpisodeReader(camera)
         self.pools = _group(episodes, demos)
         self.env_indices = sorted(self.pools)
@@ -458,10 +485,11 @@ class EnvironmentIterations(Dataset):
             indices = indices[np.sort(rng.choice(len(indices), self.max_frames, replace=False))]
         else:
             indices = subsample(indices, self.max_frames)
+        chunk = 1 if ref.role == "demo" else self.action_chunk
         if self.features is None:
-            seq = self.reader.read(ref, indices)
+            seq = self.reader.read(ref, indices, chunk=chunk)
         else:
-            seq = self.reader.read(ref, indices, images=False)
+            seq = self.reader.read(ref, indices, images=False, chunk=chunk)
             seq.features = torch.from_numpy(self.features[str(ref.path), ref.traj][indices])
         if self.located is not None and ref.role != "demo":
             points = torch.from_numpy(self.located[str(ref.path), ref.traj]).reshape(1, -1)

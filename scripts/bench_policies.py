@@ -101,6 +101,9 @@ def training_rate(policy, cfg: Config, device: torch.device) -> float:
             "subgoal": torch.rand(10, n, 3, device=device),
         },
     }
+    chunk = policy.config.action_chunk
+    batch["rollouts"]["action_chunks"] = torch.rand(10, n, chunk, 4, device=device) * 2 - 1
+    batch["rollouts"]["chunk_valid"] = torch.ones(10, n, chunk, dtype=torch.bool, device=device)
     if policy.localizer is not None:  # training reads the located points it cached
         width = 3 * policy.localizer.config.num_targets
         batch["rollouts"]["located"] = torch.rand(10, n, width, device=device)

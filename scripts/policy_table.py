@@ -48,11 +48,12 @@ class Config:
 
 def training(checkpoint: Path) -> dict:
     """What a policy checkpoint says of its training: data, time, first and last losses."""
-    extra = torch.load(checkpoint, weights_only=True, map_location="cpu")["extra"]
-    log = extra["log"]
+    saved = torch.load(checkpoint, weights_only=True, map_location="cpu")
+    extra, log = saved["extra"], saved["extra"]["log"]
     first, last = log[: min(5, len(log))], log[-min(5, len(log)) :]
     return {
         "train_envs": len(extra.get("train_envs", [])),
+        "action_chunk": saved["config"].get("action_chunk", 1),
         "epochs": len(log),
         "train_seconds": round(sum(e["seconds"] for e in log), 1),
         "pos_mse_first": float(np.mean([e["pos_mse"] for e in first])),
@@ -90,8 +91,8 @@ def row(layout: RunLayout, task: str, policy: str) -> dict | None:
 
 def markdown(rows: list[dict]) -> str:
     lines = [
-        "| task | policy | training | action loss (share of variance), first -> last 5 epochs "
-        "| novel success rate [95%] | paper |",
+        "| task | policy | training | action loss (share of variance; of the whole chunk where "
+        "chunked), first -> last 5 epochs | novel success rate [95%] | paper |",
         "|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -100,7 +101,8 @@ def markdown(rows: list[dict]) -> str:
         )
         lines.append(
             f"| {r['task']} | {r['policy']} | {r['train_envs']} envs, {r['epochs']} epochs, "
-            f"{r['train_seconds'] / 60:.0f} min | {r['pos_mse_first']:.2f} -> "
+            f"chunks of {r['action_chunk']}, {r['train_seconds'] / 60:.0f} min "
+            f"| {r['pos_mse_first']:.2f} -> "
             f"{r['pos_mse_last']:.2f} | {100 * r['success_rate']:.1f}% "
             f"[{100 * r['interval'][0]:.1f}, {100 * r['interval'][1]:.1f}] "
             f"({r['successes']}/{r['rollouts']}) | {paper} |"

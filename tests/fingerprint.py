@@ -229,7 +229,9 @@ def trained_policies(root: Path) -> dict[str, Any]:
         cfg = TrainPolicyConfig.from_preset(  # end to end, shifted: the mini recipe of then
             "PressButton", name, data=data, out=root / name, epochs=2, progress=False, shift=4
         )
-        out[name] = tensor_summary(load_policy(train_policy(cfg, tiny_config(name))).state_dict())
+        config = tiny_config(name)
+        config.action_chunk = 1  # the actor of then: one action a step
+        out[name] = tensor_summary(load_policy(train_policy(cfg, config)).state_dict())
     return out
 
 
@@ -272,6 +274,7 @@ def tiny_policy_file(root: Path) -> Path:
         "mini",
         visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
         localizer=None,
+        action_chunk=1,  # the actor of then
     )
     path = root / "tiny_policy" / "policy.pt"
     path.parent.mkdir(parents=True)

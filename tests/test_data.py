@@ -92,6 +92,31 @@ def test_frames_labels_actions_align_and_pad(collection):
         assert (r["frames"][i, n:] == 0).all() and (r["labels"][i, n:] == 0).all()
 
 
+def test_action_chunks_are_the_episodes_next_actions_from_each_read_frame(collection):
+    """Action t of the synthetic episodes is t: a frame's chunk is (t, t + 1, t + 2), also
+    when the frames read skip those steps, and ends with the episode's actions."""
+    episodes = load_episodes(collection)
+    for max_frames, frames in ((6, "random"), (None, "even")):
+        data = EnvironmentIterations(
+            episodes, "detector", max_frames=max_frames, rollout_frames=frames, action_chunk=3
+        )
+        batch = data[(1, 1)]
+        r = batch["rollouts"]
+        assert r["action_chunks"].shape == (*r["mask"].shape, 3, 4)
+        assert "action_chunks" not in batch["demos"]
+        assert not r["chunk_valid"][~r["mask"]].any()
+        for i, n in enumerate(r["lengths"].tolist()):
+            source = torch.round(r["frames"][i, :n, 0, 0, 0] * 255).long()
+            later = source[:, None] + torch.arange(3)[None]
+            valid = r["chunk_valid"][i, :n]
+            assert torch.equal(r["action_chunks"][i, :n, :, 0][valid], later[valid].float())
+            assert (r["action_chunks"][i, :n][~valid] == 0).all()
+            if max_frames is None:  # every frame: the episode has T = n - 1 actions
+                assert torch.equal(valid, later < n - 1)
+    with pytest.raises(ValueError, match="action_chunk=0: must be >= 1"):
+        EnvironmentIterations(episodes, "detector", action_chunk=0)
+
+
 def test_augmentation_keeps_alignment_and_skips_demos(collection):
     data = EnvironmentIterations(
         load_episodes(collection), "detector", augment=RolloutAugment(), seed=1

@@ -23,8 +23,22 @@ LOCALIZER = (
     "the mini policies read where the demonstrations' stage targets are in the rollout's first "
     "frame (the task's target localizer, aed train-localizer)"
 )
+CHUNK = (
+    "the mini DCT and SCAN predict the next 10 actions at every step and act on their temporal "
+    "ensemble (ACT's action chunking); NaiveDC and the paper's policies predict one"
+)
 # Changes made on purpose since the fingerprint was stored: (path, value then, value now, why).
 INTENDED = [
+    *(
+        (
+            ("recipes", f"model/{name}/{profile}", "action_chunk"),
+            ABSENT,
+            10 if profile == "mini" and name != "naive_dc" else 1,
+            CHUNK,
+        )
+        for name in ("naive_dc", "dct", "scan")
+        for profile in fingerprint.PROFILES
+    ),
     *(
         (
             ("protocol", f"collect/mini/{task}/base", "num_envs"),

@@ -48,6 +48,7 @@ logger = logging.getLogger(__name__)
 
 ACTION_DIM = 4  # pd_ee_delta_pos: dx, dy, dz in [-1, 1], gripper +1 open / -1 closed
 SUBGOAL_SCALE_M = 0.1  # subgoal offsets are learned in units of 10 cm (the reach of a stage)
+ENSEMBLE_DECAY = 0.01  # ACT's temporal ensembling: weight exp(-0.01 i), i = 0 the oldest
 
 
 @dataclass
@@ -58,18 +59,27 @@ class PolicyFeatures:
     task: torch.Tensor
 
 
-class Actor(nn.Module):
-    """MLP [in, 256, 64] with two parallel heads: position (3) and gripper control (1)."""
+def ensemble_weights(n: int, device: torch.device | None = None) -> torch.Tensor:
+    """ACT's temporal-ensembling weights of `n` predictions of one step, oldest first:
+    exp(-ENSEMBLE_DECAY * i), normalised."""
+    weights = torch.exp(-ENSEMBLE_DECAY * torch.arange(n, dtype=torch.float32, device=device))
+    return weights / weights.sum()
 
-    def __init__(self, in_dim: int, hidden: tuple[int, ...]):
+
+class Actor(nn.Module):
+    """MLP [in, 256, 64] with two parallel heads: position (3) and gripper control (1), for
+    each of the `chunk` steps from this one: (..., chunk, 3) and (..., chunk, 1)."""
+
+    def __init__(self, in_dim: int, hidden: tuple[int, ...], chunk: int = 1):
         super().__init__()
+        self.chunk = chunk
         self.body = mlp([in_dim, *hidden])
-        self.pos = nn.Linear(hidden[-1], 3)
-        self.grip = nn.Linear(hidden[-1], 1)
+        self.pos = nn.Linear(hidden[-1], 3 * chunk)
+        self.grip = nn.Linear(hidden[-1], chunk)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         h = self.body(x)
-        return self.pos(h), self.grip(h)
+        return self.pos(h).unflatten(-1, (self.chunk, 3)), self.grip(h)[..., None]
 
 
 def thin_sequences(
@@ -142,6 +152,7 @@ class DCPolicy(nn.Module):
         self.actor = Actor(
             history_dim + task_dim + located_dim + (3 if self.subgoal_head is not None else 0),
             config.actor_hidden,
+            config.action_chunk,
         )
         self.inverse_dynamics = None
         if config.inverse_dynamics:
@@ -299,14 +310,24 @@ class DCPolicy(nn.Module):
 
     def forward(self, rollouts: dict, demos: dict) -> dict[str, torch.Tensor]:
         """rollouts (B, T, ...) conditioned on the N demos they share -> standardised pos (B, T, 3),
-        gripper logit (B, T, 1), history / task features and the per-frame features."""
+        gripper logit (B, T, 1), both for the `action_chunk` steps from each (`pos_chunk`
+        (B, T, C, 3), `grip_chunk` (B, T, C, 1)), history / task features and the per-frame
+        features."""
         f, feats = self._features(rollouts, demos)
         located = self._rollout_located(rollouts, demos)
         offsets = None
         if located is not None:
             offsets = self.located_offsets(located, rollouts["proprio"].to(located.device))
         pos, grip, subgoal = self._actor(feats.history, feats.task, offsets)
-        out = {"pos": pos, "grip": grip, "history": feats.history, "task": feats.task, "visual": f}
+        out = {
+            "pos": pos[..., 0, :],
+            "grip": grip[..., 0, :],
+            "pos_chunk": pos,
+            "grip_chunk": grip,
+            "history": feats.history,
+            "task": feats.task,
+            "visual": f,
+        }
         if subgoal is not None:
             out["subgoal"] = subgoal
         return out
@@ -314,9 +335,10 @@ class DCPolicy(nn.Module):
     def _actor(
         self, history: torch.Tensor, task: torch.Tensor, offsets: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """[f_h, f_zeta (, offsets to the located points)] -> (pos, gripper, subgoal offset or
-        None). With a subgoal head, the actor also reads the predicted offset: moving toward a
-        target it was told is an easy map."""
+        """[f_h, f_zeta (, offsets to the located points)] -> (pos (..., C, 3), gripper
+        (..., C, 1) for the C = `action_chunk` steps from this one, subgoal offset or None).
+        With a subgoal head, the actor also reads the predicted offset: moving toward a target
+        it was told is an easy map."""
         parts = [history, task] if offsets is None else [history, task, offsets]
         actor_input = torch.cat(parts, dim=-1)
         if self.subgoal_head is None:
@@ -328,8 +350,9 @@ class DCPolicy(nn.Module):
         """Behaviour cloning on one `EnvironmentIterations` item (its rollouts and demos).
 
         `pos_mse` is on standardised targets, so it is relative to the actions' variance:
-        1.0 = predicting the mean. Frames without an action (each sequence's last, padding)
-        are left out.
+        1.0 = predicting the mean; with `action_chunk` > 1 it is the whole chunk's, and
+        `own_pos_mse` each frame's own action's. Frames without an action (each sequence's
+        last, padding) are left out.
         """
         rollouts = batch["rollouts"]
         out = self(rollouts, batch["demos"])
@@ -339,11 +362,11 @@ class DCPolicy(nn.Module):
         acted = torch.arange(mask.shape[1], device=mask.device)[None] < (lengths - 1)[:, None]
         if not acted.any():
             raise ValueError("loss: no frame with an action (every rollout has a single frame)")
-        pos_loss, grip_loss, grip_acc = self._action_loss(
-            out["pos"][acted], out["grip"][acted], actions[acted]
-        )
+        pos_loss, grip_loss, grip_acc = self._chunk_loss(out, rollouts, acted)
         total = pos_loss + grip_loss
         parts = {"pos_mse": pos_loss.item(), "grip_loss": grip_loss.item(), "grip_acc": grip_acc}
+        if out["pos_chunk"].shape[-2] > 1:  # pos_mse is then the chunk's
+            parts["own_pos_mse"] = self._own_action_mse(out, actions, acted)
         if self.subgoal_head is not None:
             if "subgoal" not in rollouts or "proprio" not in rollouts:
                 raise ValueError(
@@ -368,6 +391,32 @@ class DCPolicy(nn.Module):
             parts["inverse_dynamics"] = id_loss.item()
         parts["loss"] = total.item()
         return total, parts
+
+    def _chunk_loss(
+        self, out: dict, rollouts: dict, acted: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, float]:
+        """The action loss of every acting frame's chunk: its k-th action against the episode's
+        action k steps later, where the episode has one (`rollouts['action_chunks']`, read by
+        `EnvironmentIterations(action_chunk=...)`); a chunk of 1 is the frame's own action."""
+        chunk = out["pos_chunk"].shape[-2]
+        if chunk == 1:
+            targets, valid = rollouts["actions"][..., None, :], acted[..., None]
+        elif "action_chunks" in rollouts and rollouts["action_chunks"].shape[-2] == chunk:
+            targets = rollouts["action_chunks"]
+            valid = rollouts["chunk_valid"].to(acted.device) & acted[..., None]
+        else:
+            raise ValueError(
+                f"loss: config.action_chunk={chunk} needs rollouts['action_chunks'] (B, T, "
+                f"{chunk}, 4) and ['chunk_valid'] (EnvironmentIterations(action_chunk={chunk}))"
+            )
+        targets = targets.to(out["pos"].device)
+        return self._action_loss(out["pos_chunk"][valid], out["grip_chunk"][valid], targets[valid])
+
+    def _own_action_mse(self, out: dict, actions: torch.Tensor, acted: torch.Tensor) -> float:
+        """The position MSE of each frame's own action alone (a chunk's first), relative to the
+        actions' variance: the number to compare across chunk sizes."""
+        target = (actions.to(out["pos"].device) - self.action_mean) / self.action_std
+        return F.mse_loss(out["pos"][acted], target[acted][:, :3]).item()
 
     def _action_loss(
         self, pos: torch.Tensor, grip: torch.Tensor, actions: torch.Tensor
@@ -412,6 +461,7 @@ class DCPolicy(nn.Module):
                 "task": None,
                 "queries": None,
                 "located": None,
+                "chunks": [],
             }
             if self.localizer is not None:
                 self._online["queries"] = self.demo_queries(
@@ -447,9 +497,36 @@ class DCPolicy(nn.Module):
                     ).flatten(1)
                 offsets = self.located_offsets(self._online["located"], proprio)
             pos, grip, _ = self._actor(history, task, offsets)
-            action = self.to_action(pos, grip)[0]
+            pos, grip = self._ensemble(pos[0], grip[0])
+            action = self.to_action(pos, grip)
         self._online.update(history=history[0], task=task[0], t=self._online["t"] + 1)
         return action.cpu().numpy().astype(np.float32)
+
+    def _ensemble(self, pos: torch.Tensor, grip: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """This step's chunk (C, 3), (C, 1) -> the action for now: what each of the last C steps
+        predicted for it, weighted by `ensemble_weights` (the oldest most)."""
+        chunks = self._online["chunks"]
+        chunks.append((pos, grip))
+        del chunks[: -len(pos)]
+        weights = ensemble_weights(len(chunks), pos.device)
+        ages = range(len(chunks) - 1, -1, -1)  # chunks[i] was predicted `age` steps ago
+        mean_pos = sum(w * c[0][a] for w, c, a in zip(weights, chunks, ages, strict=True))
+        mean_grip = sum(w * c[1][a] for w, c, a in zip(weights, chunks, ages, strict=True))
+        return mean_pos, mean_grip
+
+    @staticmethod
+    def ensemble_chunks(pos: torch.Tensor, grip: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Batched `act`: chunks pos (B, T, C, 3), grip (B, T, C, 1) -> the action each step
+        takes online, (B, T, 3) and (B, T, 1)."""
+        steps, chunk = pos.shape[1], pos.shape[2]
+        out_pos, out_grip = torch.zeros_like(pos[:, :, 0]), torch.zeros_like(grip[:, :, 0])
+        for t in range(steps):
+            n = min(t + 1, chunk)
+            weights = ensemble_weights(n, pos.device)  # oldest first: age n - 1 down to 0
+            for w, age in zip(weights, range(n - 1, -1, -1), strict=True):
+                out_pos[:, t] += w * pos[:, t - age, age]
+                out_grip[:, t] += w * grip[:, t - age, age]
+        return out_pos, out_grip
 
     def observation_frame(self, obs: Any) -> torch.Tensor:
         if isinstance(obs, torch.Tensor) and obs.dim() == 3:

@@ -45,6 +45,11 @@ class PolicyConfig:
         demo_frames: encode at most this many frames of each demonstration, evenly spread
             (first and last kept), in training and online alike; 0 = every frame. It bounds the
             cost of DCT's and SCAN's demonstration memory (NaiveDC reads only the ends).
+        action_chunk: the actor predicts this step's action and the next `action_chunk - 1`
+            (ACT's action chunking); online, every step's action is the exponentially
+            weighted mean of what the last `action_chunk` steps predicted for it (ACT's
+            temporal ensembling). 1 = one action per step (the paper's); under `mini` the
+            class's `mini_action_chunk` (DCT and SCAN 10, NaiveDC 1).
     """
 
     # Training draws under mini and demo (see `recipe`); a policy class may change them.
@@ -52,6 +57,7 @@ class PolicyConfig:
     demo_composition: ClassVar[tuple[int, int]] = (3, 2)
     mini_max_frames: ClassVar[int] = 0
     mini_rollout_frames: ClassVar[str] = "even"
+    mini_action_chunk: ClassVar[int] = 10  # under mini and demo
 
     visual: VisualHeadConfig = field(default_factory=VisualHeadConfig)
     actor_hidden: tuple[int, ...] = (256, 64)
@@ -63,6 +69,7 @@ class PolicyConfig:
     subgoal_weight: float = 0.0
     frozen_encoder: bool = False
     localizer: LocalizerConfig | None = None
+    action_chunk: int = 1
 
     def __post_init__(self) -> None:
         if isinstance(self.visual, dict):
@@ -91,6 +98,8 @@ class PolicyConfig:
             )
         if self.demo_frames < 0 or self.demo_frames == 1:
             raise ValueError(f"demo_frames={self.demo_frames}: 0 (all) or >= 2")
+        if self.action_chunk < 1:
+            raise ValueError(f"action_chunk={self.action_chunk}: must be >= 1")
         if self.grip_loss not in ("bce", "mse"):
             raise ValueError(f"grip_loss={self.grip_loss!r}: bce or mse")
 
@@ -98,7 +107,7 @@ class PolicyConfig:
     def preset(cls: type[C], profile: str) -> C:
         """The sizes of a profile: `paper` the paper's (ResNet18 head, RGB-D only); `mini` and
         `demo` CPU-sized (the task's frozen scene encoder as the visual head, proprioception, a
-        stage-target head, the task's target localizer)."""
+        stage-target head, the task's target localizer, the class's action chunks)."""
         if check_profile(profile) == "paper":
             return cls(visual=VisualHeadConfig(arch="resnet18", out_dim=256, dropout=0.5))
         small = VisualHeadConfig(arch="small_cnn", out_dim=256, dropout=0.0, width=32)
@@ -108,6 +117,7 @@ class PolicyConfig:
             subgoal_weight=1.0,
             frozen_encoder=True,
             localizer=LocalizerConfig.preset(profile),
+            action_chunk=cls.mini_action_chunk,
         )
 
     @classmethod

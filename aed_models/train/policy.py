@@ -249,6 +249,7 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
         rollout_frames=cfg.rollout_frames,
         features=features,
         located=located,
+        action_chunk=policy_cfg.action_chunk,
     )
     logger.info(
         "%s on %s: %d environments, %d episodes", cfg.policy, cfg.data, len(dataset), len(episodes)

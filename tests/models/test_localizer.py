@@ -261,8 +261,9 @@ def test_online_actions_equal_batched_with_a_localizer(name, collections):
         points = policy.localizer.locate(rollout["frames"][:, 0], policy.demo_queries(demos))
         located = points.flatten(1)[:, None].expand(-1, rollout["mask"].shape[1], -1)
         given = policy({**rollout, "located": located}, demos)
-    assert torch.allclose(out["pos"], given["pos"]) and torch.allclose(out["grip"], given["grip"])
-    expected = policy.to_action(out["pos"], out["grip"])[0]
+    assert torch.allclose(out["pos_chunk"], given["pos_chunk"])
+    assert torch.allclose(out["grip_chunk"], given["grip_chunk"])
+    expected = policy.to_action(*policy.ensemble_chunks(out["pos_chunk"], out["grip_chunk"]))[0]
     policy.reset(demos)
     for t in range(int(rollout["lengths"][0])):
         action = policy.act(rollout["frames"][0, t], proprio=rollout["proprio"][0, t])

@@ -27,6 +27,9 @@ TINY = {
 }
 
 
+CHUNK = POLICIES.preset("scan", "mini").action_chunk
+
+
 def tiny_config(name: str, profile: str = "mini"):
     """End to end (the paper's way), without the target localizer (tests/models/test_encoder.py
     trains on a frozen encoder, tests/models/test_localizer.py reads a localizer)."""
@@ -53,11 +56,15 @@ def sequences(n: int, lengths: list[int], seed: int) -> dict[str, torch.Tensor]:
     frames = torch.rand(n, longest, 4, H, W, generator=g)
     mask = torch.arange(longest)[None] < torch.tensor(lengths)[:, None]
     frames[~mask] = 0.0
+    actions = torch.randn(n, longest, 4, generator=g).clamp(-1, 1)
+    later = torch.arange(longest)[:, None] + torch.arange(CHUNK)[None]  # consecutive frames
     return {
         "frames": frames,
         "mask": mask,
         "lengths": torch.tensor(lengths),
-        "actions": torch.randn(n, longest, 4, generator=g).clamp(-1, 1),
+        "actions": actions,
+        "action_chunks": actions[:, later.clamp_max(longest - 1)],
+        "chunk_valid": later[None] < (torch.tensor(lengths) - 1)[:, None, None],
         "proprio": torch.rand(n, longest, 5, generator=g) * mask[..., None],
         "subgoal": torch.rand(n, longest, 3, generator=g) * mask[..., None],
     }
@@ -133,7 +140,7 @@ def test_online_features_equal_batched(name, subgoal_weight, batch):
             rollout, torch.ones(1, 12, dtype=torch.bool), batch["demos"], proprio=proprio
         )
         out = policy({"frames": rollout, "proprio": proprio}, batch["demos"])
-    expected = policy.to_action(out["pos"], out["grip"])[0]
+    expected = policy.to_action(*policy.ensemble_chunks(out["pos_chunk"], out["grip_chunk"]))[0]
     policy.reset(batch["demos"])
     for t in range(12):
         action = policy.act(rollout[0, t], proprio=proprio[0, t])
@@ -294,6 +301,7 @@ def test_training_loss_falls(collection, tmp_path):
     cfg = train_config(collection, tmp_path / "run", policy="naive_dc", epochs=6, lr=3e-3)
     config = tiny_config("naive_dc")
     config.visual.dropout = 0.0
+    config.action_chunk = 1  # each synthetic frame's action is its own: later ones are noise
     final = train_policy(cfg, config)
     log = json.loads((tmp_path / "run" / "train_log.json").read_text())
     assert [e["epoch"] for e in log] == list(range(1, 7))
@@ -483,3 +491,33 @@ def test_demonstrations_are_thinned_by_the_datas_rule():
     for row, length in enumerate(lengths):
         kept = thinned[row, new_mask[row], 0].long().numpy()
         assert np.array_equal(kept, subsample(np.arange(length), 5))
+
+
+@pytest.mark.parametrize("name", list(POLICIES))
+def test_action_chunks_learn_later_actions_and_are_ensembled_online(name, batch):
+    policy = tiny_policy(name, action_chunk=3)
+    policy.set_action_stats(torch.randn(50, 4) * 0.2)
+    with pytest.raises(ValueError, match=r"action_chunk=3 needs rollouts\['action_chunks'\]"):
+        policy.loss(batch)  # the fixture's chunks are the preset's width
+    rollouts = batch["rollouts"]
+    later = torch.arange(12)[:, None] + torch.arange(3)[None]
+    rollouts["chunk_valid"] = later[None] < (rollouts["lengths"] - 1)[:, None, None]
+    rollouts["action_chunks"] = rollouts["actions"][:, later.clamp_max(11)]
+    loss, parts = policy.loss(batch)
+    loss.backward()
+    assert torch.isfinite(loss) and parts["pos_mse"] > 0
+    policy.eval()
+    rollout, proprio = rollouts["frames"][:1], rollouts["proprio"][:1]
+    with torch.no_grad():
+        out = policy({"frames": rollout, "proprio": proprio}, batch["demos"])
+    assert out["pos_chunk"].shape == (1, 12, 3, 3) and out["grip_chunk"].shape == (1, 12, 3, 1)
+    assert torch.equal(out["pos"], out["pos_chunk"][..., 0, :])
+    policy.reset(batch["demos"])
+    for t in range(6):  # by hand: predicted at t - age, its element `age`, the oldest weighted most
+        action = policy.act(rollout[0, t], proprio=proprio[0, t])
+        ages = range(min(t, 2), -1, -1)
+        w = torch.tensor([np.exp(-0.01 * i) for i in range(len(ages))])
+        w = w / w.sum()
+        pos = sum(wi * out["pos_chunk"][0, t - a, a] for wi, a in zip(w, ages, strict=True))
+        grip = sum(wi * out["grip_chunk"][0, t - a, a] for wi, a in zip(w, ages, strict=True))
+        np.testing.assert_allclose(action, policy.to_action(pos, grip).numpy(), atol=1e-5)

@@ -18,3 +18,6 @@ class NaiveDCConfig(PolicyConfig):
     demo_composition: ClassVar[tuple[int, int]] = (3, 4)
     mini_max_frames: ClassVar[int] = 8
     mini_rollout_frames: ClassVar[str] = "random"
+    # It acts from the current frame alone: on the ensemble of chunks it stopped succeeding
+    # (the README's "Measured here").
+    mini_action_chunk: ClassVar[int] = 1
