@@ -53,7 +53,7 @@ def parse(spec: str) -> tuple[str, Path, Path]:
 
 
 def outcomes(rollouts: Path) -> dict[tuple[int, int], bool]:
-    """Success of every rollout, keyed by (environment, rollout seed)."""
+    """Success of every rollout, keyed by (environment, rollout seed), in the folder's order."""
     return {
         (r.env_index, r.seed): r.success for r in trajectory.scan_collection(rollouts).episodes()
     }

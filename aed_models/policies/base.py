@@ -59,11 +59,16 @@ class PolicyFeatures:
     task: torch.Tensor
 
 
-def ensemble_weights(n: int, device: torch.device | None = None) -> torch.Tensor:
-    """ACT's temporal-ensembling weights of `n` predictions of one step, oldest first:
-    exp(-ENSEMBLE_DECAY * i), normalised."""
-    weights = torch.exp(-ENSEMBLE_DECAY * torch.arange(n, dtype=torch.float32, device=device))
-    return weights / weights.sum()
+def ensemble_latest(pos: torch.Tensor, grip: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """ACT's temporal ensemble: the chunks of the last n steps, oldest first, pos (..., n, C, 3)
+    and grip (..., n, C, 1) -> the latest step's action, (..., 3) and (..., 1): the mean of what
+    each predicted for it (the i-th oldest its element n - 1 - i), weighted exp(-ENSEMBLE_DECAY
+    * i), normalised."""
+    n = pos.shape[-3]
+    rows, ages = torch.arange(n), torch.arange(n - 1, -1, -1)
+    weights = torch.exp(-ENSEMBLE_DECAY * torch.arange(n, dtype=pos.dtype, device=pos.device))
+    weights = (weights / weights.sum())[:, None]
+    return (weights * pos[..., rows, ages, :]).sum(-2), (weights * grip[..., rows, ages, :]).sum(-2)
 
 
 class Actor(nn.Module):
@@ -503,30 +508,27 @@ class DCPolicy(nn.Module):
         return action.cpu().numpy().astype(np.float32)
 
     def _ensemble(self, pos: torch.Tensor, grip: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """This step's chunk (C, 3), (C, 1) -> the action for now: what each of the last C steps
-        predicted for it, weighted by `ensemble_weights` (the oldest most)."""
+        """This step's chunk (C, 3), (C, 1) -> the action for now, from it and the chunks of
+        the last C - 1 steps (`ensemble_latest`)."""
         chunks = self._online["chunks"]
         chunks.append((pos, grip))
         del chunks[: -len(pos)]
-        weights = ensemble_weights(len(chunks), pos.device)
-        ages = range(len(chunks) - 1, -1, -1)  # chunks[i] was predicted `age` steps ago
-        mean_pos = sum(w * c[0][a] for w, c, a in zip(weights, chunks, ages, strict=True))
-        mean_grip = sum(w * c[1][a] for w, c, a in zip(weights, chunks, ages, strict=True))
-        return mean_pos, mean_grip
+        return ensemble_latest(
+            torch.stack([c[0] for c in chunks]), torch.stack([c[1] for c in chunks])
+        )
 
     @staticmethod
     def ensemble_chunks(pos: torch.Tensor, grip: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Batched `act`: chunks pos (B, T, C, 3), grip (B, T, C, 1) -> the action each step
         takes online, (B, T, 3) and (B, T, 1)."""
-        steps, chunk = pos.shape[1], pos.shape[2]
-        out_pos, out_grip = torch.zeros_like(pos[:, :, 0]), torch.zeros_like(grip[:, :, 0])
-        for t in range(steps):
-            n = min(t + 1, chunk)
-            weights = ensemble_weights(n, pos.device)  # oldest first: age n - 1 down to 0
-            for w, age in zip(weights, range(n - 1, -1, -1), strict=True):
-                out_pos[:, t] += w * pos[:, t - age, age]
-                out_grip[:, t] += w * grip[:, t - age, age]
-        return out_pos, out_grip
+        chunk = pos.shape[2]
+        steps = [
+            ensemble_latest(
+                pos[:, max(0, t - chunk + 1) : t + 1], grip[:, max(0, t - chunk + 1) : t + 1]
+            )
+            for t in range(pos.shape[1])
+        ]
+        return torch.stack([p for p, _ in steps], 1), torch.stack([g for _, g in steps], 1)
 
     def observation_frame(self, obs: Any) -> torch.Tensor:
         if isinstance(obs, torch.Tensor) and obs.dim() == 3:
