@@ -25,6 +25,7 @@ def _commands() -> dict[str, Callable[..., Any]]:
         monitor,
         render,
         report,
+        results,
         rollout,
         train,
     )
@@ -47,6 +48,7 @@ def _commands() -> dict[str, Callable[..., Any]]:
         "models": models.models,
         "demo": demo.demo,
         "experiments": experiments.experiments,
+        "results": results.results,
     }
 
 

@@ -4,7 +4,8 @@ Each variant is a checkpoint and the folder `aed rollout` wrote with it (same en
 rollout seed as the baseline's). A row gives what the variant trained on (environments, agent
 successes per environment, epochs, seconds), its action loss, its novel success rate with its
 interval, and, paired with the baseline on (environment, rollout seed), how many rollouts only
-one of the two succeeded in. Writes JSON (one record per variant) and a Markdown table:
+one of the two succeeded in. Writes a results record (`aed_eval.results`, one entry per
+variant) and its Markdown table:
 
     R=runs/r20/PressButton
     python scripts/lever_table.py --title "SCAN, agent successes per environment" \
@@ -15,8 +16,9 @@ one of the two succeeded in. Writes JSON (one record per variant) and a Markdown
 
 from __future__ import annotations
 
-import json
 import logging
+import shlex
+import sys
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +28,7 @@ import torch
 import tyro
 
 from aed_eval.metrics import rate_interval
+from aed_eval.results import write_result
 from aed_models.train.common import select_successes, task_episodes
 from aed_tasks import trajectory
 
@@ -41,7 +44,7 @@ class Config:
     title: str = ""
     """The table's heading."""
     out: Path = Path("results/mini/levers/lever.json")
-    """JSON records; the Markdown table goes beside it (.md)."""
+    """The results record (JSON); its Markdown table goes beside it (.md)."""
 
 
 def parse(spec: str) -> tuple[str, Path, Path]:
@@ -107,34 +110,18 @@ def record(label: str, checkpoint: Path, rollouts: Path, base: dict) -> dict:
     }
 
 
-def markdown(title: str, rows: list[dict]) -> str:
-    lines = [
-        f"{title}\n" if title else "",
-        "| variant | environments x agent successes | epochs (updates) | epochs' time "
-        "| action loss (share of variance), first -> last 5 epochs "
-        "| novel success rate [95%] | only baseline / only this |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for r in rows:
-        per_env = "-".join(str(n) for n in r["successes_per_env"])
-        lines.append(
-            f"| {r['label']} | {r['train_envs']} x {per_env} | {r['epochs']} ({r['updates']}) "
-            f"| {r['train_seconds']:.0f} s | {r['pos_mse_first']:.2f} -> {r['pos_mse_last']:.2f} "
-            f"| {100 * r['success_rate']:.1f}% [{100 * r['interval'][0]:.1f}, "
-            f"{100 * r['interval'][1]:.1f}] ({r['successes']}/{r['rollouts']}) "
-            f"| {r['only_baseline']} / {r['only_this']} |"
-        )
-    return "\n".join(line for line in lines if line) + "\n"
-
-
 def main(cfg: Config) -> list[dict]:
     specs = [parse(cfg.baseline), *(parse(v) for v in cfg.variants)]
     base = outcomes(specs[0][2])
     rows = [record(label, ckpt, folder, base) for label, ckpt, folder in specs]
-    cfg.out.parent.mkdir(parents=True, exist_ok=True)
-    cfg.out.write_text(json.dumps({"title": cfg.title, "rows": rows}, indent=1) + "\n")
-    cfg.out.with_suffix(".md").write_text(markdown(cfg.title, rows))
-    print(markdown(cfg.title, rows))
+    record = {
+        "kind": "lever_table",
+        "command": shlex.join(["python", *sys.argv]),
+        "title": cfg.title,
+        "rows": rows,
+    }
+    written = write_result(cfg.out, record)
+    print(written[1].read_text())
     return rows
 
 

@@ -1,7 +1,7 @@
 """The policies' table: training data and time, action loss, novel success rate beside the paper's.
 
 One row per (task, policy): the rollout folder of `aed rollout` and the checkpoint it names.
-Writes JSON (one record per row) and a Markdown table:
+Writes a results record (`aed_eval.results`, one entry per row) and its Markdown table:
 
     python scripts/policy_table.py --runs runs/r20 --tasks PressButton \
         --out results/mini/policies.json
@@ -9,8 +9,9 @@ Writes JSON (one record per row) and a Markdown table:
 
 from __future__ import annotations
 
-import json
 import logging
+import shlex
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +20,7 @@ import torch
 import tyro
 
 from aed_eval.metrics import rate_interval
+from aed_eval.results import write_result
 from aed_models.layout import RunLayout
 from aed_tasks import trajectory
 
@@ -43,7 +45,7 @@ class Config:
     tasks: tuple[str, ...] = ("PressButton",)
     policies: tuple[str, ...] = ("naive_dc", "dct", "scan")
     out: Path = Path("results/mini/policies.json")
-    """JSON records; the Markdown table goes beside it (.md)."""
+    """The results record (JSON); its Markdown table goes beside it (.md)."""
 
 
 def training(checkpoint: Path) -> dict:
@@ -89,34 +91,12 @@ def row(layout: RunLayout, task: str, policy: str) -> dict | None:
     }
 
 
-def markdown(rows: list[dict]) -> str:
-    lines = [
-        "| task | policy | training | action loss (share of variance; of the whole chunk where "
-        "chunked), first -> last 5 epochs | novel success rate [95%] | paper |",
-        "|---|---|---|---|---|---|",
-    ]
-    for r in rows:
-        paper = (
-            "" if r["paper_success"] is None else "{:.2f} +- {:.2f}%".format(*r["paper_success"])
-        )
-        lines.append(
-            f"| {r['task']} | {r['policy']} | {r['train_envs']} envs, {r['epochs']} epochs, "
-            f"chunks of {r['action_chunk']}, {r['train_seconds'] / 60:.0f} min "
-            f"| {r['pos_mse_first']:.2f} -> "
-            f"{r['pos_mse_last']:.2f} | {100 * r['success_rate']:.1f}% "
-            f"[{100 * r['interval'][0]:.1f}, {100 * r['interval'][1]:.1f}] "
-            f"({r['successes']}/{r['rollouts']}) | {paper} |"
-        )
-    return "\n".join(lines) + "\n"
-
-
 def main(cfg: Config) -> list[dict]:
     layout = RunLayout(cfg.runs)
     rows = [r for t in cfg.tasks for p in cfg.policies if (r := row(layout, t, p)) is not None]
-    cfg.out.parent.mkdir(parents=True, exist_ok=True)
-    cfg.out.write_text(json.dumps(rows, indent=1) + "\n")
-    cfg.out.with_suffix(".md").write_text(markdown(rows))
-    print(markdown(rows))
+    record = {"kind": "policy_table", "command": shlex.join(["python", *sys.argv]), "records": rows}
+    written = write_result(cfg.out, record)
+    print(written[1].read_text())
     return rows
 
 

@@ -306,3 +306,21 @@ def test_report_as_a_command_writes_the_table_of_an_evaluation(pipeline, tmp_pat
     )
     assert result.returncode == 0, result.stderr[-3000:]
     assert "| PressButton / naive_dc |" in (out / "report.md").read_text()
+
+
+@pytest.mark.slow
+def test_timing_accuracy_script_renders_an_evaluation_of_the_pipeline(pipeline, tmp_path):
+    from aed_eval.results import stale_markdown
+
+    cfg, _ = pipeline
+    script = load_script("timing_accuracy")
+    config = script.Config(
+        profile="demo", runs=cfg.runs, tasks=(TASK,), policies=("naive_dc",), alpha=0.5
+    )
+    config.out = tmp_path
+    written = script.main(config)
+    record = json.loads(written[0].read_text())
+    assert record["kind"] == "timing_accuracy" and set(record["thresholds"]) == {"probe", "lstm_ed"}
+    assert record["panels"] and all(len(p["scores"]["probe"]) > 1 for p in record["panels"])
+    assert [p.suffix for p in written] == [".json", ".md", ".png"]
+    assert stale_markdown(tmp_path) == []

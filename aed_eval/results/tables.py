@@ -1,0 +1,63 @@
+"""The policy tables of `results/<profile>/`: every policy's novel success rate beside the
+paper's (`scripts/policy_table.py`), and one policy's variants paired on the same rollout seeds
+(`scripts/lever_table.py`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from aed_eval.results import command_line, renderer
+
+
+def _rate(r: dict[str, Any]) -> str:
+    low, high = r["interval"]
+    return (
+        f"{100 * r['success_rate']:.1f}% [{100 * low:.1f}, {100 * high:.1f}] "
+        f"({r['successes']}/{r['rollouts']})"
+    )
+
+
+@renderer("policy_table")
+def policy_table(record: dict[str, Any], stem: Path) -> list[Path]:
+    """One row per (task, policy): training, action loss, novel success rate, the paper's."""
+    lines = [
+        "| task | policy | training | action loss (share of variance; of the whole chunk where "
+        "chunked), first -> last 5 epochs | novel success rate [95%] | paper |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in record["records"]:
+        paper = (
+            "" if r["paper_success"] is None else "{:.2f} +- {:.2f}%".format(*r["paper_success"])
+        )
+        lines.append(
+            f"| {r['task']} | {r['policy']} | {r['train_envs']} envs, {r['epochs']} epochs, "
+            f"chunks of {r['action_chunk']}, {r['train_seconds'] / 60:.0f} min "
+            f"| {r['pos_mse_first']:.2f} -> {r['pos_mse_last']:.2f} | {_rate(r)} | {paper} |"
+        )
+    path = stem.with_suffix(".md")
+    path.write_text("\n".join(lines) + "\n" + command_line(record))
+    return [path]
+
+
+@renderer("lever_table")
+def lever_table(record: dict[str, Any], stem: Path) -> list[Path]:
+    """One row per variant: what it trained on, its action loss, its success rate, and the
+    rollouts only it or only the baseline (the first row) succeeded in."""
+    lines = [
+        f"{record['title']}\n" if record.get("title") else "",
+        "| variant | environments x agent successes | epochs (updates) | epochs' time "
+        "| action loss (share of variance), first -> last 5 epochs "
+        "| novel success rate [95%] | only baseline / only this |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in record["rows"]:
+        per_env = "-".join(str(n) for n in r["successes_per_env"])
+        lines.append(
+            f"| {r['label']} | {r['train_envs']} x {per_env} | {r['epochs']} ({r['updates']}) "
+            f"| {r['train_seconds']:.0f} s | {r['pos_mse_first']:.2f} -> {r['pos_mse_last']:.2f} "
+            f"| {_rate(r)} | {r['only_baseline']} / {r['only_this']} |"
+        )
+    path = stem.with_suffix(".md")
+    path.write_text("\n".join(line for line in lines if line) + "\n" + command_line(record))
+    return [path]

@@ -1,0 +1,76 @@
+"""Timing accuracy: every detector's score curve on a successful rollout, a failed one and a
+labelled failure with its onset, for each (task, policy) evaluated under a profile.
+
+Reads the evaluations `aed evaluate` (or `aed experiments`) wrote under `--runs` and writes one
+results record per case, with its table and figure, under `results/<profile>/timing_accuracy/`
+(`aed_eval.results.timing`; `aed results` re-renders them from the JSON):
+
+    python scripts/timing_accuracy.py --profile mini --tasks PressButton --policies scan
+"""
+
+from __future__ import annotations
+
+import logging
+import shlex
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import tyro
+
+from aed_eval.results import write_result
+from aed_eval.results.timing import timing_record
+from aed_models.layout import RunLayout
+from aed_models.recipe import Profile, check_profile
+from aed_tasks import PAPER_TASK_ORDER
+
+logger = logging.getLogger("timing_accuracy")
+
+
+@dataclass
+class Config:
+    profile: Profile = "mini"
+    """The profile whose evaluations are read; results go to results/<profile>/."""
+    runs: Path | None = None
+    """Runs folder (default: runs/<profile>, where `aed experiments` writes)."""
+    tasks: tuple[str, ...] = PAPER_TASK_ORDER
+    policies: tuple[str, ...] = ("naive_dc", "dct", "scan")
+    calibration: str = "policy"
+    """Which calibrated threshold: `policy` (the policy's own successes) or `expert`."""
+    alpha: float = 0.1
+    """The threshold's false-alarm rate."""
+    out: Path | None = None
+    """Folder of the records (default: results/<profile>/timing_accuracy)."""
+
+    def __post_init__(self) -> None:
+        check_profile(self.profile)
+        self.runs = Path(self.runs) if self.runs is not None else Path("runs") / self.profile
+        self.out = (
+            Path(self.out)
+            if self.out is not None
+            else Path("results") / self.profile / "timing_accuracy"
+        )
+
+
+def main(cfg: Config) -> list[Path]:
+    layout = RunLayout(cfg.runs)
+    written = []
+    for task in cfg.tasks:
+        for policy in cfg.policies:
+            folder = layout.evaluation(task, policy)
+            if not (folder / "scores.json").is_file():
+                logger.info("%s / %s: not evaluated (%s), skipped", task, policy, folder)
+                continue
+            record = timing_record(folder, cfg.calibration, cfg.alpha)
+            record["command"] = shlex.join(["python", *sys.argv])
+            paths = write_result(cfg.out / f"{task}_{policy}.json", record)
+            logger.info("%s / %s: %s", task, policy, ", ".join(str(p) for p in paths))
+            written += paths
+    if not written:
+        raise SystemExit(f"{cfg.runs}: no evaluation of {cfg.tasks} x {cfg.policies}")
+    return written
+
+
+if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    main(tyro.cli(Config))
