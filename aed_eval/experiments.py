@@ -1,4 +1,4 @@
-"""`aed experiments`: the paper's main experiment on every task, planned, resumed and reported.
+"""`aed experiments`: the paper's experiments, planned, resumed and reported.
 
 The main experiment is, task by task, the protocol `aed demo` runs for one (collect, train the
 scene encoder, localizer, policies and detectors, roll out, calibrate, evaluate) under the
@@ -7,6 +7,10 @@ it is a list of jobs (one stage's config each) and a ledger, `<runs>/experiments
 jobs that finished: a run skips every job the ledger holds with the same config and resumes
 the first one that did not finish (each stage resumes its own folder). Stop it at any time, run
 the same command again. `--plan` prints what is done and what is left, and runs nothing.
+
+The ablations and the stability runs (`--experiments rollout_augmentation probe_components
+seeds`, `aed_eval.variants`) add detector variants on top of the main experiment's stages for
+their tasks (Pick & Place, as the paper), and write their records under `results/<profile>/`.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import dataclasses
 import hashlib
 import json
 import logging
+import shlex
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -42,30 +47,57 @@ class ExperimentsConfig:
     Args:
         profile: the preset of every stage: mini (this CPU, many hours), paper (a GPU's job),
             demo (minutes a task).
-        tasks: the tasks of the grid, in order (default: all seven, the paper's order).
+        experiments: main (every task x policy x detector), and any of the detector variants
+            of `aed_eval.variants` (rollout_augmentation, probe_components, seeds).
+        tasks: the tasks of every experiment, in order (default: each experiment's own: all
+            seven, the paper's order, for main; Pick & Place for the variants).
         runs: root of everything written (default: runs/<profile>).
+        results: where the variants' records go (default: results/<profile>).
         plan: print what is done and what is left; run nothing.
         workers: simulation processes for collection and rollouts.
         seed: root seed of every stage.
     """
 
     profile: Profile = "mini"
-    tasks: tuple[str, ...] = PAPER_TASK_ORDER
+    experiments: tuple[str, ...] = ("main",)
+    tasks: tuple[str, ...] = ()
     runs: Path | None = None
+    results: Path | None = None
     plan: bool = False
     workers: int = 2
     seed: int = 0
 
     def __post_init__(self) -> None:
+        from aed_eval.variants import EXPERIMENTS
+
         check_profile(self.profile)
-        if not self.tasks:
-            raise ValueError("tasks=(): name at least one task")
+        known = ("main", *EXPERIMENTS)
+        unknown = [e for e in self.experiments if e not in known]
+        if unknown or not self.experiments:
+            raise ValueError(f"experiments={self.experiments}: known {known}")
         self.tasks = tuple(task_class(t).task_name for t in self.tasks)
         if len(set(self.tasks)) != len(self.tasks):
             raise ValueError(f"tasks={self.tasks}: a task is named twice")
         if self.workers < 1:
             raise ValueError(f"workers={self.workers}: must be >= 1")
         self.runs = Path(self.runs) if self.runs is not None else Path("runs") / self.profile
+        self.results = (
+            Path(self.results) if self.results is not None else Path("results") / self.profile
+        )
+
+    def tasks_of(self, experiment: str) -> tuple[str, ...]:
+        """The tasks an experiment runs on: `tasks`, else the experiment's own."""
+        from aed_eval.variants import EXPERIMENTS
+
+        if self.tasks:
+            return self.tasks
+        return PAPER_TASK_ORDER if experiment == "main" else EXPERIMENTS[experiment].tasks
+
+    def main_tasks(self) -> tuple[str, ...]:
+        """Every task whose main stages run: the variants stand on them too."""
+        wanted = {t for e in self.experiments for t in self.tasks_of(e)}
+        order = self.tasks or PAPER_TASK_ORDER
+        return tuple(t for t in order if t in wanted)
 
 
 @dataclass
@@ -90,16 +122,31 @@ class Job:
 
 
 def plan_jobs(cfg: ExperimentsConfig) -> list[Job]:
-    """Every task's stages, each task's configs built (so validated) before anything runs."""
+    """Every task's main stages, then every variant's; all configs built (so validated) before
+    anything runs."""
     from aed_eval.demo import DemoConfig, plan_stages
+    from aed_eval.variants import EXPERIMENTS, variant_stages
 
     jobs = []
-    for task in cfg.tasks:
-        protocol = DemoConfig.from_preset(
+    protocols = {
+        task: DemoConfig.from_preset(
             task, cfg.profile, runs=cfg.runs, workers=cfg.workers, seed=cfg.seed
         )
+        for task in cfg.main_tasks()
+    }
+    for task, protocol in protocols.items():
         for stage in plan_stages(protocol):
             jobs += [Job(task, stage.name, fn, config) for fn, config in stage.jobs]
+    for name in cfg.experiments:
+        if name == "main":
+            continue
+        experiment = EXPERIMENTS[name]
+        for task in cfg.tasks_of(name):
+            for variant in experiment.variants:
+                if variant.baseline:
+                    continue
+                for stage in variant_stages(protocols[task], experiment, variant):
+                    jobs += [Job(task, stage.name, fn, config) for fn, config in stage.jobs]
     return jobs
 
 
@@ -168,12 +215,35 @@ def evaluations(jobs: Sequence[Job]) -> list[Path]:
     return [
         Path(job.config.out) / "results.json"
         for job in jobs
-        if isinstance(job.config, EvaluateConfig)
+        if isinstance(job.config, EvaluateConfig) and job.stage == "evaluate"  # main's only
     ]
 
 
+def variant_records(cfg: ExperimentsConfig) -> list[Path]:
+    """Write every variant experiment's records (one per task and policy) under `results`."""
+    from aed_eval.results import write_result
+    from aed_eval.variants import EXPERIMENTS, variants_record
+
+    command = shlex.join(
+        ["aed", "experiments", "--profile", cfg.profile, "--experiments", *cfg.experiments]
+        + (["--tasks", *cfg.tasks] if cfg.tasks else [])
+        + ["--runs", str(cfg.runs)]
+    )
+    written = []
+    for name in cfg.experiments:
+        if name == "main":
+            continue
+        experiment = EXPERIMENTS[name]
+        for task in cfg.tasks_of(name):
+            for policy in experiment.policies:
+                record = variants_record(cfg.runs, experiment, task, policy)
+                record["command"] = command
+                written += write_result(cfg.results / name / f"{task}_{policy}.json", record)
+    return written
+
+
 def experiments(cfg: Annotated[ExperimentsConfig, tyro.conf.arg(name="")]) -> int:
-    """The main experiment on every task (resumable): plan, run what is left, report."""
+    """The paper's experiments (resumable): plan, run what is left, report."""
     from aed_eval.report import ReportConfig, make_report
 
     jobs = plan_jobs(cfg)
@@ -188,7 +258,11 @@ def experiments(cfg: Annotated[ExperimentsConfig, tyro.conf.arg(name="")]) -> in
         path = make_report(
             ReportConfig(results=tuple(evaluations(jobs)), out=RunLayout(cfg.runs).report())
         )
+        records = variant_records(cfg)
     print(path.read_text())
     print("\n".join(status_lines(jobs, ledger)))
+    for record in records:
+        if record.suffix == ".md":
+            print(record.read_text())
     print(f"ran {ran} jobs in {(time.perf_counter() - start) / 60:.1f} min; report: {path}")
     return 0

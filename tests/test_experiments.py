@@ -101,3 +101,32 @@ def test_unknown_or_repeated_tasks_are_refused():
         ExperimentsConfig(tasks=("Nope",))
     with pytest.raises(ValueError, match="named twice"):
         ExperimentsConfig(tasks=("PickPlace", "PickPlace"))
+
+
+def test_the_variants_plan_their_detectors_beside_the_main_stages_of_their_task(tmp_path):
+    from aed_eval.variants import EXPERIMENTS, VariantTraining
+    from aed_models.detectors import DETECTORS
+
+    cfg = ExperimentsConfig(profile="mini", experiments=("probe_components",), runs=tmp_path)
+    jobs = plan_jobs(cfg)
+    assert {j.task for j in jobs} == {"PickPlace"}  # the paper's task, its main stages first
+    assert jobs[0].stage == "collect base split"
+    trainings = [j.config for j in jobs if isinstance(j.config, VariantTraining)]
+    assert [t.training.detector for t in trainings] == ["probe"] * 3
+    assert [t.model for t in trainings] == [
+        v.model for v in EXPERIMENTS["probe_components"].variants[:3]
+    ]
+    assert all(
+        str(t.training.out).startswith(str(tmp_path / "variants" / "probe_components"))
+        for t in trainings
+    )
+    assert len({j.digest for j in jobs}) == len(jobs)
+    for experiment in EXPERIMENTS.values():  # every variant's model overrides are valid
+        for variant in experiment.variants:
+            for detector in experiment.detectors if variant.model else ():
+                DETECTORS.preset(detector, "mini", **variant.model)
+    seeds = plan_jobs(ExperimentsConfig(profile="mini", experiments=("seeds",), runs=tmp_path))
+    trained = [j.config.training for j in seeds if isinstance(j.config, VariantTraining)]
+    assert sorted({t.seed for t in trained}) == [1, 2, 3, 4] and len(trained) == 4 * 10
+    with pytest.raises(ValueError, match=r"experiments=\('ablation',\): known"):
+        ExperimentsConfig(experiments=("ablation",))

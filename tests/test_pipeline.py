@@ -315,7 +315,12 @@ def test_timing_accuracy_script_renders_an_evaluation_of_the_pipeline(pipeline, 
     cfg, _ = pipeline
     script = load_script("timing_accuracy")
     config = script.Config(
-        profile="demo", runs=cfg.runs, tasks=(TASK,), policies=("naive_dc",), alpha=0.5
+        profile="demo",
+        runs=cfg.runs,
+        tasks=(TASK,),
+        policies=("naive_dc",),
+        alpha=0.5,
+        calibration="expert",  # the tiny pipeline's policy has no held-out success
     )
     config.out = tmp_path
     written = script.main(config)
@@ -324,3 +329,41 @@ def test_timing_accuracy_script_renders_an_evaluation_of_the_pipeline(pipeline, 
     assert record["panels"] and all(len(p["scores"]["probe"]) > 1 for p in record["panels"])
     assert [p.suffix for p in written] == [".json", ".md", ".png"]
     assert stale_markdown(tmp_path) == []
+
+
+@pytest.mark.slow
+def test_a_detector_variant_trains_and_evaluates_beside_the_main_run(pipeline, tmp_path):
+    from aed_eval.results import stale_markdown, write_result
+    from aed_eval.variants import (
+        DetectorExperiment,
+        Variant,
+        variant_root,
+        variant_stages,
+        variants_record,
+    )
+
+    cfg, _ = pipeline
+    experiment = DetectorExperiment(
+        "ra_check",
+        "RA",
+        tasks=(TASK,),
+        policies=("naive_dc",),
+        detectors=("probe", "lstm_ed"),
+        variants=(Variant("without RA", {"augment": False}), Variant("with RA", baseline=True)),
+    )
+    main_detector = RunLayout(cfg.runs).detector(TASK, "probe", "naive_dc")
+    before = main_detector.stat().st_mtime_ns
+    stages = variant_stages(cfg, experiment, experiment.variants[0])
+    for stage in stages:
+        for fn, job in stage.jobs:
+            fn(job)
+    root = variant_root(cfg.runs, "ra_check", experiment.variants[0])
+    assert (root / TASK / "policies").is_symlink() and not (root / TASK / "detectors").is_symlink()
+    assert RunLayout(root).detector(TASK, "probe", "naive_dc").is_file()
+    assert main_detector.stat().st_mtime_ns == before  # the main run's detectors untouched
+    stages[0].jobs[0][0](stages[0].jobs[0][1])  # linking again is a no-op
+
+    record = variants_record(cfg.runs, experiment, TASK, "naive_dc")
+    assert list(record["variants"]) == ["without RA", "with RA"]
+    written = write_result(tmp_path / "ra.json", record)
+    assert "| probe |" in written[1].read_text() and stale_markdown(tmp_path) == []

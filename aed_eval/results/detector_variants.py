@@ -1,0 +1,71 @@
+"""The ablation tables: every variant's rollout-level AUROC and AUPRC of one (task, policy)
+side by side (`aed_eval.variants`), with their mean and std where the variants are repeats."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from aed_eval.results import command_line, renderer, save_figure
+
+
+def _cell(c: dict[str, Any], metric: str) -> str:
+    value, (low, high) = c[metric], c[f"{metric}_interval"]
+    if value is None or not np.isfinite(value):
+        return "n/a"
+    return f"{value:.3f} [{low:.3f}, {high:.3f}]"
+
+
+@renderer("detector_variants")
+def render_variants(record: dict[str, Any], stem: Path) -> list[Path]:
+    """A table per metric (a row per detector, a column per variant) and a bar plot of AUROC."""
+    names = list(record["variants"])
+    outcomes = ", ".join(
+        f"{n}: {v['outcomes']['successes']} successes / {v['outcomes']['failures']} failures"
+        for n, v in record["variants"].items()
+    )
+    lines = [f"{record['title']}: {record['task']} / {record['policy']} ({outcomes}).\n"]
+    for metric in ("auroc", "auprc"):
+        extra = " mean +- std |" if record["spread"] else ""
+        lines += [
+            f"| {metric.upper()} [95%] | " + " | ".join(names) + f" |{extra}",
+            "|---|" + "---:|" * len(names) + ("---:|" if extra else ""),
+        ]
+        for d in record["detectors"]:
+            cells = [record["variants"][n]["detectors"][d] for n in names]
+            row = f"| {d} | " + " | ".join(_cell(c, metric) for c in cells) + " |"
+            if record["spread"]:
+                values = np.asarray([c[metric] for c in cells], dtype=float)
+                row += f" {np.nanmean(values):.3f} +- {np.nanstd(values, ddof=1):.3f} |"
+            lines.append(row)
+        lines.append("")
+    md = stem.with_suffix(".md")
+    md.write_text("\n".join(lines) + command_line(record))
+    return [md, _plot(record, names, Path(f"{stem}.png"))]
+
+
+def _plot(record: dict[str, Any], names: list[str], path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    detectors = record["detectors"]
+    fig, ax = plt.subplots(figsize=(1.2 * len(detectors) + 2.5, 3.4))
+    width = 0.8 / len(names)
+    for k, name in enumerate(names):
+        cells = [record["variants"][name]["detectors"][d] for d in detectors]
+        values = np.asarray([c["auroc"] for c in cells], dtype=float)
+        bounds = np.asarray([c["auroc_interval"] for c in cells], dtype=float)
+        err = np.nan_to_num(np.stack([values - bounds[:, 0], bounds[:, 1] - values]), nan=0.0)
+        x = np.arange(len(detectors)) + (k - (len(names) - 1) / 2) * width
+        ax.bar(x, np.nan_to_num(values), width, yerr=err, capsize=2, label=name)
+    ax.axhline(0.5, color="grey", linestyle=":")
+    ax.set_xticks(np.arange(len(detectors)), detectors, rotation=30, ha="right", fontsize=8)
+    ax.set(ylim=(0, 1), ylabel="rollout AUROC [95%]")
+    ax.set_title(f"{record['task']} / {record['policy']}: {record['experiment']}", fontsize=9)
+    ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    return save_figure(fig, path)

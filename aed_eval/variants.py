@@ -1,0 +1,205 @@
+"""Detector variants beside the main experiment: the paper's ablations and its stability runs.
+
+An experiment here changes only the detectors: how each trains (`augment`, `seed`) or its model
+(PrObe's components). Each variant runs in its own runs folder,
+`<runs>/variants/<experiment>/<variant>/`, whose task folder links the main run's collections,
+scene encoder, localizer, policies, rollouts and feature caches and holds its own detectors,
+calibrations and evaluations: every stage reads it through the same `RunLayout`, and nothing the
+main experiment wrote is touched. The baseline variant is the main experiment itself (no jobs).
+Its record (`results/<profile>/<experiment>/<task>_<policy>.json`, kind `detector_variants`)
+puts every variant's rollout-level AUROC and AUPRC side by side.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from aed_eval.scoring import DETECTOR_NAMES
+from aed_models.layout import RunLayout
+
+logger = logging.getLogger(__name__)
+
+SHARED = ("data", "encoder", "localizer", "policies", "rollouts", "features")
+"""What a variant's task folder links from the main run (everything but detectors and evals)."""
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One detector variant: its label, the training fields it changes, the model fields it
+    changes (`baseline`: the main experiment's detectors, nothing to run)."""
+
+    name: str
+    training: dict[str, Any] = field(default_factory=dict)
+    model: dict[str, Any] = field(default_factory=dict)
+    baseline: bool = False
+
+
+@dataclass(frozen=True)
+class DetectorExperiment:
+    """Detectors of some policies on some tasks, under several variants."""
+
+    name: str
+    title: str
+    tasks: tuple[str, ...]
+    policies: tuple[str, ...]
+    detectors: tuple[str, ...]
+    variants: tuple[Variant, ...]
+    spread: bool = False  # the variants are repeats (seeds): also report their mean and std
+
+
+EXPERIMENTS = {
+    e.name: e
+    for e in (
+        DetectorExperiment(
+            "rollout_augmentation",
+            "Rollout augmentation (RA): every detector trained without and with it",
+            tasks=("PickPlace",),
+            policies=("naive_dc", "dct", "scan"),
+            detectors=DETECTOR_NAMES,
+            variants=(Variant("without RA", {"augment": False}), Variant("with RA", baseline=True)),
+        ),
+        DetectorExperiment(
+            "probe_components",
+            "PrObe's components: the naive model, then the pattern extractor, L_pat and L_tem",
+            tasks=("PickPlace",),
+            policies=("scan",),
+            detectors=("probe",),
+            variants=(
+                Variant(
+                    "naive model",
+                    model={"use_pattern_extractor": False, "lambda_pat": 0.0, "lambda_tem": 0.0},
+                ),
+                Variant("+ pattern extractor", model={"lambda_pat": 0.0, "lambda_tem": 0.0}),
+                Variant("+ L_pat", model={"lambda_tem": 0.0}),
+                Variant("+ L_tem (PrObe)", baseline=True),
+            ),
+        ),
+        DetectorExperiment(
+            "seeds",
+            "Stability: every detector trained with five seeds",
+            tasks=("PickPlace",),
+            policies=("naive_dc", "dct", "scan"),
+            detectors=DETECTOR_NAMES,
+            variants=(
+                Variant("seed 0", baseline=True),
+                *(Variant(f"seed {s}", {"seed": s}) for s in range(1, 5)),
+            ),
+            spread=True,
+        ),
+    )
+}
+
+
+def variant_root(runs: Path, experiment: str, variant: Variant) -> Path:
+    """The runs folder of one variant (the main run's own for the baseline)."""
+    if variant.baseline:
+        return Path(runs)
+    slug = "".join(c if c.isalnum() else "_" for c in variant.name).strip("_")
+    return Path(runs) / "variants" / experiment / slug
+
+
+@dataclass
+class LinkConfig:
+    """Link a variant's task folder to the main run's shared parts."""
+
+    main: Path
+    variant: Path
+    task: str
+
+
+def link_shared(cfg: LinkConfig) -> None:
+    """Make `<variant>/<task>/<part>` a link to the main run's, for every shared part (relative
+    links, so the runs folder can move); an existing different file or link is refused."""
+    folder = Path(cfg.variant) / cfg.task
+    folder.mkdir(parents=True, exist_ok=True)
+    for part in SHARED:
+        target = Path(cfg.main) / cfg.task / part
+        target.mkdir(parents=True, exist_ok=True)  # features may not exist yet
+        link = folder / part
+        relative = os.path.relpath(target, folder)
+        if link.is_symlink() and os.readlink(link) == relative:
+            continue
+        if link.exists() or link.is_symlink():
+            raise FileExistsError(f"{link}: exists and is not a link to {target}; move it away")
+        link.symlink_to(relative, target_is_directory=True)
+
+
+@dataclass
+class VariantTraining:
+    """A detector training with some of its model's fields replaced."""
+
+    training: Any
+    model: dict[str, Any] = field(default_factory=dict)
+
+
+def train_variant(job: VariantTraining) -> Path:
+    from aed_models.detectors import DETECTORS
+    from aed_models.train.detector import train_detector
+
+    t = job.training
+    model = DETECTORS.preset(t.detector, t.profile, **job.model) if job.model else None
+    return train_detector(t, model)
+
+
+def variant_stages(protocol: Any, experiment: DetectorExperiment, variant: Variant) -> list[Any]:
+    """The stages of one non-baseline variant on `protocol`'s task: link, train the detectors,
+    calibrate, evaluate."""
+    from aed_eval.calibrate import calibrate_detectors
+    from aed_eval.demo import Stage, calibrations, detector_trainings, evaluations
+    from aed_eval.evaluate import evaluate_policy
+
+    root = variant_root(protocol.runs, experiment.name, variant)
+    c = dataclasses.replace(
+        protocol, runs=root, policies=experiment.policies, detectors=experiment.detectors
+    )
+    trainings = [
+        VariantTraining(dataclasses.replace(t, **variant.training), dict(variant.model))
+        for t in detector_trainings(c)
+    ]
+    prefix = f"{experiment.name} / {variant.name}"
+    return [
+        Stage(f"{prefix}: link", [(link_shared, LinkConfig(protocol.runs, root, c.task))]),
+        Stage(f"{prefix}: train detectors", [(train_variant, t) for t in trainings]),
+        Stage(f"{prefix}: calibrate", [(calibrate_detectors, x) for x in calibrations(c)]),
+        Stage(f"{prefix}: evaluate", [(evaluate_policy, x) for x in evaluations(c)]),
+    ]
+
+
+def variants_record(
+    runs: Path, experiment: DetectorExperiment, task: str, policy: str
+) -> dict[str, Any]:
+    """Every variant's rollout-level AUROC and AUPRC (default ending, with intervals) of one
+    (task, policy), read from the variants' evaluations."""
+    rows = {}
+    for variant in experiment.variants:
+        path = RunLayout(variant_root(runs, experiment.name, variant)).evaluation(task, policy)
+        results = json.loads((path / "results.json").read_text())
+        cells = {}
+        for d in experiment.detectors:
+            cell = results["detectors"][d][results["ending"]]
+            cells[d] = {k: cell[k] for k in ("auroc", "auroc_interval", "auprc", "auprc_interval")}
+        rows[variant.name] = {
+            "evaluation": str(path),
+            "policy_sha256": results["policy_sha256"],
+            "outcomes": results["rollouts"]["outcomes"][results["ending"]],
+            "detectors": cells,
+        }
+    shas = {row["policy_sha256"] for row in rows.values()}
+    if len(shas) != 1:
+        raise ValueError(f"{experiment.name} {task}/{policy}: variants scored different policies")
+    return {
+        "kind": "detector_variants",
+        "experiment": experiment.name,
+        "title": experiment.title,
+        "task": task,
+        "policy": policy,
+        "detectors": list(experiment.detectors),
+        "spread": experiment.spread,
+        "variants": rows,
+    }
