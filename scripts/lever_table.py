@@ -114,13 +114,13 @@ def main(cfg: Config) -> list[dict]:
     specs = [parse(cfg.baseline), *(parse(v) for v in cfg.variants)]
     base = outcomes(specs[0][2])
     rows = [record(label, ckpt, folder, base) for label, ckpt, folder in specs]
-    record = {
+    result = {
         "kind": "lever_table",
         "command": shlex.join(["python", *sys.argv]),
         "title": cfg.title,
         "rows": rows,
     }
-    written = write_result(cfg.out, record)
+    written = write_result(cfg.out, result)
     print(written[1].read_text())
     return rows
 
