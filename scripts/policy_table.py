@@ -1,7 +1,9 @@
 """The policies' table: training data and time, action loss, novel success rate beside the paper's.
 
 One row per (task, policy): the rollout folder of `aed rollout` and the checkpoint it names.
-Writes a results record (`aed_eval.results`, one entry per row) and its Markdown table:
+Writes a results record (`aed_eval.results`, one entry per row) and its Markdown table; rows of
+tasks not measured in this call are kept from the record already at `--out`, so the tasks can be
+measured in different runs folders (and sessions):
 
     python scripts/policy_table.py --runs runs/r20 --tasks PressButton \
         --out results/mini/policies.json
@@ -9,6 +11,7 @@ Writes a results record (`aed_eval.results`, one entry per row) and its Markdown
 
 from __future__ import annotations
 
+import json
 import logging
 import shlex
 import sys
@@ -91,10 +94,33 @@ def row(layout: RunLayout, task: str, policy: str) -> dict | None:
     }
 
 
+def kept_rows(out: Path, tasks: tuple[str, ...]) -> list[dict]:
+    """The rows of the record already at `out` for tasks other than `tasks`."""
+    if not out.is_file():
+        return []
+    previous = json.loads(out.read_text())
+    if previous.get("kind") != "policy_table":
+        raise ValueError(f"{out} is a {previous.get('kind')!r} record, not a policy table")
+    command = previous.get("command")  # records written before rows named their command
+    return [
+        {**r, "command": r.get("command", command)}
+        for r in previous["records"]
+        if r["task"] not in tasks
+    ]
+
+
 def main(cfg: Config) -> list[dict]:
     layout = RunLayout(cfg.runs)
-    rows = [r for t in cfg.tasks for p in cfg.policies if (r := row(layout, t, p)) is not None]
-    record = {"kind": "policy_table", "command": shlex.join(["python", *sys.argv]), "records": rows}
+    command = shlex.join(["python", *sys.argv])
+    rows = [
+        {**r, "command": command}
+        for t in cfg.tasks
+        for p in cfg.policies
+        if (r := row(layout, t, p)) is not None
+    ]
+    order = {name: i for i, name in enumerate(PAPER_SUCCESS)}
+    rows = sorted(kept_rows(cfg.out, cfg.tasks) + rows, key=lambda r: order.get(r["task"], 99))
+    record = {"kind": "policy_table", "records": rows}
     written = write_result(cfg.out, record)
     print(written[1].read_text())
     return rows

@@ -367,3 +367,27 @@ def test_a_detector_variant_trains_and_evaluates_beside_the_main_run(pipeline, t
     assert list(record["variants"]) == ["without RA", "with RA"]
     written = write_result(tmp_path / "ra.json", record)
     assert "| probe |" in written[1].read_text() and stale_markdown(tmp_path) == []
+
+
+@pytest.mark.slow
+def test_error_correction_replays_the_stored_rollouts_and_corrects_at_alarms(pipeline, tmp_path):
+    from aed_eval.correction import CorrectionConfig, correction_record
+    from aed_eval.results import write_result
+
+    cfg, _ = pipeline
+    pilot = dict(task=TASK, policy="naive_dc", detectors=("lstm_ed",), num_demos=1, runs=cfg.runs)
+    never = correction_record(CorrectionConfig(**pilot, threshold=2.0))  # scores stay <= 1
+    quiet = never["detectors"]["lstm_ed"]
+    assert never["rollouts"] == 2 and quiet["alarmed"] == 0
+    assert quiet["successes"] == never["successes_without"]  # the replays are the stored ones
+    assert quiet["quiet_replays_changed"] == 0
+    always = correction_record(CorrectionConfig(**pilot, threshold=0.0))
+    assert always["detectors"]["lstm_ed"]["alarmed"] == 2
+    replays = json.loads(
+        (
+            RunLayout(cfg.runs).evaluation(TASK, "naive_dc").parent / "correction" / "lstm_ed.json"
+        ).read_text()
+    )["replays"]
+    assert all(r["corrections"] == 1 and r["first_alarm"] == 0 for r in replays)
+    written = write_result(tmp_path / "correction.json", always)
+    assert "| lstm_ed |" in written[1].read_text()

@@ -111,3 +111,32 @@ def test_results_command_rerenders_and_checks(tmp_path, capsys):
     assert f"{md}: missing" in capsys.readouterr().out
     assert aed_main(["results", "--roots", str(tmp_path / "out")]) == 0
     assert md.exists() and aed_main(["results", "--roots", str(tmp_path / "out"), "--check"]) == 0
+
+
+def test_policy_table_keeps_the_rows_of_tasks_measured_elsewhere(tmp_path, monkeypatch):
+    """A call that measures Pick & Place keeps Press Button's rows and their command."""
+    from tests.helpers import load_script
+
+    script = load_script("policy_table")
+    base = {"train_envs": 23, "action_chunk": 1, "epochs": 100, "train_seconds": 60.0}
+    base |= {"pos_mse_first": 0.8, "pos_mse_last": 0.3, "rollouts": 10, "successes": 2}
+    base |= {"success_rate": 0.2, "interval": [0.0, 0.5], "paper_success": None}
+    older = [{**base, "task": "PressButton", "policy": p} for p in ("naive_dc", "scan")]
+    out = tmp_path / "policies.json"
+    write_result(out, {"kind": "policy_table", "command": "python old.py", "records": older})
+    measured = {"task": "PickPlace", "policy": "scan"}
+    monkeypatch.setattr(script, "row", lambda layout, t, p: {**base, **measured})
+    monkeypatch.setattr("sys.argv", ["scripts/policy_table.py", "--tasks", "PickPlace"])
+    script.main(script.Config(runs=tmp_path, tasks=("PickPlace",), policies=("scan",), out=out))
+    rows = load_record(out)["records"]
+    assert [(r["task"], r["policy"]) for r in rows] == [
+        ("PressButton", "naive_dc"),
+        ("PressButton", "scan"),
+        ("PickPlace", "scan"),
+    ]
+    table = out.with_suffix(".md").read_text()
+    assert "`python old.py` (PressButton)" in table
+    assert "`python scripts/policy_table.py --tasks PickPlace` (PickPlace)" in table
+    (tmp_path / "other.json").write_text(json.dumps({"kind": "lever_table", "records": []}))
+    with pytest.raises(ValueError, match="not a policy table"):
+        script.kept_rows(tmp_path / "other.json", ("PickPlace",))

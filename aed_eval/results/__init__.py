@@ -44,7 +44,7 @@ def renderer(kind: str) -> Callable[[Renderer], Renderer]:
 
 def renderers() -> dict[str, Renderer]:
     """Every kind's renderer (importing the modules that register them)."""
-    from aed_eval.results import detector_variants, tables, timing  # noqa: F401
+    from aed_eval.results import correction, detector_variants, tables, timing  # noqa: F401
 
     return dict(_RENDERERS)
 

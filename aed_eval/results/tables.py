@@ -35,8 +35,13 @@ def policy_table(record: dict[str, Any], stem: Path) -> list[Path]:
             f"chunks of {r['action_chunk']}, {r['train_seconds'] / 60:.0f} min "
             f"| {r['pos_mse_first']:.2f} -> {r['pos_mse_last']:.2f} | {_rate(r)} | {paper} |"
         )
+    commands: dict[str, list[str]] = {}
+    for r in record["records"]:
+        if r.get("command") and r["task"] not in commands.setdefault(r["command"], []):
+            commands[r["command"]].append(r["task"])
+    computed = "".join(f"\nComputed by `{c}` ({', '.join(t)}).\n" for c, t in commands.items())
     path = stem.with_suffix(".md")
-    path.write_text("\n".join(lines) + "\n" + command_line(record))
+    path.write_text("\n".join(lines) + "\n" + (computed or command_line(record)))
     return [path]
 
 
