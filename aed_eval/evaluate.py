@@ -67,6 +67,10 @@ class EvaluateConfig:
     """Output folder (default: runs/<task>/<policy>/eval)."""
     num_demos: int = 5
     """Demonstrations per environment given to the detectors."""
+    num_suboptimal_demos: int = 0
+    """Of the `num_demos`, how many are sub-optimal (the demonstration-quality experiment)."""
+    suboptimal_demos: Path | None = None
+    """Collection holding the sub-optimal demonstrations (default: `demos`)."""
     window: int = 10
     """Frames after a labelled onset within which an alarm counts as on time."""
     bootstrap: int = metrics.NUM_BOOTSTRAP
@@ -86,6 +90,10 @@ class EvaluateConfig:
         self.task = task_class(self.task).task_name
         POLICIES.check(self.policy)
         check_detectors(self.detectors)
+        if not 0 <= self.num_suboptimal_demos <= self.num_demos:
+            raise ValueError(
+                f"num_suboptimal_demos={self.num_suboptimal_demos}: 0..num_demos={self.num_demos}"
+            )
         if self.num_demos < 1 or self.window < 0 or self.bootstrap < 1:
             raise ValueError(
                 f"num_demos={self.num_demos}, window={self.window}, bootstrap={self.bootstrap}: "
@@ -266,7 +274,9 @@ def evaluate_policy(cfg: EvaluateConfig) -> dict[str, Any]:
             )
 
     roots = [Path(cfg.demos)] + ([Path(cfg.labelled)] if cfg.labelled is not None else [])
-    scorer = EpisodeScorer(detectors, policy, Demonstrations(roots, cfg.split, cfg.num_demos))
+    roots += [Path(cfg.suboptimal_demos)] if cfg.suboptimal_demos is not None else []
+    demos = Demonstrations(roots, cfg.split, cfg.num_demos, cfg.num_suboptimal_demos)
+    scorer = EpisodeScorer(detectors, policy, demos)
     names = [d.name for d in detectors]
     per_detector = score_all(scorer, refs, names, f"score {cfg.policy} rollouts", cfg.progress)
     labelled_scores = score_all(
@@ -285,6 +295,7 @@ def evaluate_policy(cfg: EvaluateConfig) -> dict[str, Any]:
         "policy": cfg.policy,
         "policy_sha256": policy_sha,
         "split": cfg.split,
+        "demos": {"count": cfg.num_demos, "suboptimal": cfg.num_suboptimal_demos},
         "ending": stored.ending,
         "endings": list(views),
         "diagnostic": bool(overlaps),

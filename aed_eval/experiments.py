@@ -8,9 +8,10 @@ jobs that finished: a run skips every job the ledger holds with the same config 
 the first one that did not finish (each stage resumes its own folder). Stop it at any time, run
 the same command again. `--plan` prints what is done and what is left, and runs nothing.
 
-The ablations and the stability runs (`--experiments rollout_augmentation probe_components
-seeds`, `aed_eval.variants`) add detector variants on top of the main experiment's stages for
-their tasks (Pick & Place, as the paper), and write their records under `results/<profile>/`.
+The ablations, the stability runs and the demonstration-quality experiment (`--experiments
+rollout_augmentation probe_components seeds demo_quality`, `aed_eval.variants`) add variants on
+top of the main experiment's stages for their tasks (Pick & Place and Press Button, as the
+paper), and write their records under `results/<profile>/`.
 """
 
 from __future__ import annotations
@@ -47,10 +48,11 @@ class ExperimentsConfig:
     Args:
         profile: the preset of every stage: mini (this CPU, many hours), paper (a GPU's job),
             demo (minutes a task).
-        experiments: main (every task x policy x detector), and any of the detector variants
-            of `aed_eval.variants` (rollout_augmentation, probe_components, seeds).
+        experiments: main (every task x policy x detector), and any of the variant experiments
+            of `aed_eval.variants` (rollout_augmentation, probe_components, seeds,
+            demo_quality).
         tasks: the tasks of every experiment, in order (default: each experiment's own: all
-            seven, the paper's order, for main; Pick & Place for the variants).
+            seven, the paper's order, for main; the paper's task for each variant experiment).
         runs: root of everything written (default: runs/<profile>).
         results: where the variants' records go (default: results/<profile>).
         plan: print what is done and what is left; run nothing.
@@ -125,7 +127,7 @@ def plan_jobs(cfg: ExperimentsConfig) -> list[Job]:
     """Every task's main stages, then every variant's; all configs built (so validated) before
     anything runs."""
     from aed_eval.demo import DemoConfig, plan_stages
-    from aed_eval.variants import EXPERIMENTS, variant_stages
+    from aed_eval.variants import EXPERIMENTS, experiment_stages, variant_stages
 
     jobs = []
     protocols = {
@@ -142,11 +144,12 @@ def plan_jobs(cfg: ExperimentsConfig) -> list[Job]:
             continue
         experiment = EXPERIMENTS[name]
         for task in cfg.tasks_of(name):
+            stages = experiment_stages(protocols[task], experiment)
             for variant in experiment.variants:
-                if variant.baseline:
-                    continue
-                for stage in variant_stages(protocols[task], experiment, variant):
-                    jobs += [Job(task, stage.name, fn, config) for fn, config in stage.jobs]
+                if not variant.baseline:
+                    stages += variant_stages(protocols[task], experiment, variant)
+            for stage in stages:
+                jobs += [Job(task, stage.name, fn, config) for fn, config in stage.jobs]
     return jobs
 
 

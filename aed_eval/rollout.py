@@ -86,6 +86,10 @@ class RolloutConfig:
     """Steps of every rollout (the task's evaluation horizon by default)."""
     envs: tuple[int, ...] = ()
     """Explicit environment indices."""
+    num_suboptimal_demos: int = 0
+    """Of the `num_demos`, how many are sub-optimal (the demonstration-quality experiment)."""
+    suboptimal_demos: Path | None = None
+    """Collection holding the sub-optimal demonstrations (default: `demos`)."""
     shard_size: int = 10
     """Episodes per shard file (the unit of atomic writes and of resuming)."""
     workers: int = 1
@@ -121,11 +125,17 @@ class RolloutConfig:
         bad = [i for i in self.envs if not 0 <= i < size]
         if bad:
             raise ValueError(f"envs={bad}: {self.task}-{self.split} has environments 0..{size - 1}")
+        if not 0 <= self.num_suboptimal_demos <= self.num_demos:
+            raise ValueError(
+                f"num_suboptimal_demos={self.num_suboptimal_demos}: 0..num_demos={self.num_demos}"
+            )
         self.checkpoint, self.demos, self.out = (
             Path(self.checkpoint),
             Path(self.demos),
             Path(self.out),
         )
+        if self.suboptimal_demos is not None:
+            self.suboptimal_demos = Path(self.suboptimal_demos)
 
     @classmethod
     def from_preset(
@@ -168,7 +178,17 @@ class RolloutConfig:
         return replace(self, policy_sha256=file_sha256(self.checkpoint))
 
     def identity(self) -> dict[str, Any]:
-        return {k: plain_value(getattr(self, k)) for k in IDENTITY}
+        identity = {k: plain_value(getattr(self, k)) for k in IDENTITY}
+        if self.num_suboptimal_demos:  # only then, so folders written before it still resume
+            identity["num_suboptimal_demos"] = self.num_suboptimal_demos
+        return identity
+
+    def demonstrations(self) -> Demonstrations:
+        """The demonstrations the policy is conditioned on, environment by environment."""
+        roots = [self.demos]
+        if self.suboptimal_demos is not None and self.suboptimal_demos != self.demos:
+            roots.append(self.suboptimal_demos)
+        return Demonstrations(roots, self.split, self.num_demos, self.num_suboptimal_demos)
 
     def to_dict(self) -> dict[str, Any]:
         return {k: plain_value(v) for k, v in asdict(self).items()}
@@ -237,7 +257,7 @@ class RolloutRunner(EpisodeRunner):
             terminate_on_success=False,
         )
         self._env = trajectory.make_step_recorder(env, record_env_states=True)
-        self.demos = Demonstrations(Path(cfg.demos), cfg.split, cfg.num_demos)
+        self.demos = cfg.demonstrations()
 
     def env(self, shard: RolloutShard | None = None) -> Any:
         return self._env
@@ -335,7 +355,7 @@ def paper_ending(entry: dict[str, Any]) -> tuple[int, bool]:
 def run_rollouts(cfg: RolloutConfig) -> ProductionSummary:
     """Run every planned rollout shard that is not committed yet (resume = run again)."""
     cfg = cfg.with_checkpoint_hash()
-    available = Demonstrations(Path(cfg.demos), cfg.split, cfg.num_demos).envs()
+    available = cfg.demonstrations().envs()
     if not available:
         raise FileNotFoundError(
             f"{cfg.demos}: no {cfg.split} demonstrations; collect them with "

@@ -71,10 +71,9 @@ class EpisodeScorer:
     def close(self) -> None:
         self.reader.close()
 
-    @torch.inference_mode()
-    def score(self, ref: trajectory.EpisodeRef) -> dict[str, np.ndarray]:
-        """Per-frame scores (T + 1,) of one stored episode by every detector, post-processed as
-        online (`aed_models.detectors.postprocess`)."""
+    def _inputs(self, ref: trajectory.EpisodeRef) -> tuple[dict, dict, Any]:
+        """(rollout batch of one, its environment's demonstrations, the policy's features or
+        None) of one stored episode."""
         from aed_models.data import pad_sequences
 
         if ref.env_index not in self.demos:
@@ -88,7 +87,26 @@ class EpisodeScorer:
             features = self.policy.features(
                 rollout["frames"], rollout["mask"], demos, proprio=rollout.get("proprio")
             )
+        return rollout, demos, features
+
+    @torch.inference_mode()
+    def score(self, ref: trajectory.EpisodeRef) -> dict[str, np.ndarray]:
+        """Per-frame scores (T + 1,) of one stored episode by every detector, post-processed as
+        online (`aed_models.detectors.postprocess`)."""
+        rollout, demos, features = self._inputs(ref)
         return {d.name: self._scores(d, rollout, demos, features) for d in self.detectors}
+
+    @torch.inference_mode()
+    def embed(self, ref: trajectory.EpisodeRef) -> dict[str, np.ndarray]:
+        """Per-frame embeddings (T + 1, E) of one stored episode by every detector
+        (`ErrorDetector.embed`)."""
+        rollout, demos, features = self._inputs(ref)
+        return {
+            d.name: d.model.embed(rollout, demos, features if d.model.requires_policy else None)[0]
+            .cpu()
+            .numpy()
+            for d in self.detectors
+        }
 
     @staticmethod
     def _scores(
@@ -103,22 +121,45 @@ class EpisodeScorer:
 
 
 class Demonstrations:
-    """The first `num_demos` optimal demonstrations of each environment of one or more
-    collections, read when first asked for and padded (`frames`, `mask`).
+    """The demonstrations of each environment of one or more collections: the first
+    `num_demos - num_suboptimal` optimal ones, then the first `num_suboptimal` sub-optimal ones
+    (a failed first attempt, then success), read when first asked for and padded (`frames`,
+    `mask`).
 
     Only the latest environment's frames are kept: as float tensors 5 demonstrations of about
     100 frames take ~150 MB, so holding every novel environment's would take gigabytes, while
     rollouts and episodes are read environment by environment.
     """
 
-    def __init__(self, roots: Path | Sequence[Path], split: str, num_demos: int):
+    def __init__(
+        self, roots: Path | Sequence[Path], split: str, num_demos: int, num_suboptimal: int = 0
+    ):
+        if not 0 <= num_suboptimal <= num_demos:
+            raise ValueError(f"num_suboptimal={num_suboptimal}: 0..num_demos={num_demos}")
         roots = [roots] if isinstance(roots, (str, Path)) else list(roots)
-        self.num_demos = num_demos
-        self.refs: dict[int, list[trajectory.EpisodeRef]] = {}
+        self.num_demos, self.num_suboptimal = num_demos, num_suboptimal
+        optimal: dict[int, list[trajectory.EpisodeRef]] = {}
+        suboptimal: dict[int, list[trajectory.EpisodeRef]] = {}
         for root in roots:
             for ref in trajectory.scan_collection(Path(root)).episodes():
-                if ref.role == "demo" and not ref.suboptimal and ref.split == split:
-                    self.refs.setdefault(ref.env_index, []).append(ref)
+                if ref.role == "demo" and ref.split == split:
+                    kind = suboptimal if ref.suboptimal else optimal
+                    kind.setdefault(ref.env_index, []).append(ref)
+        self.refs: dict[int, list[trajectory.EpisodeRef]] = {}
+        short = []
+        for env in sorted(optimal.keys() | suboptimal.keys()):
+            picked = optimal.get(env, [])[: num_demos - num_suboptimal]
+            picked += suboptimal.get(env, [])[:num_suboptimal]
+            if num_suboptimal and len(picked) < num_demos:
+                short.append(env)
+            elif picked:
+                self.refs[env] = picked
+        if short:
+            raise ValueError(
+                f"environments {short} of {[str(r) for r in roots]}: fewer than "
+                f"{num_demos - num_suboptimal} optimal and {num_suboptimal} sub-optimal "
+                "demonstrations; collect them with `aed collect --num-suboptimal-demos ...`"
+            )
         self._latest: tuple[int, dict[str, Any]] | None = None
 
     def envs(self) -> list[int]:

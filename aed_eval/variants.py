@@ -1,13 +1,17 @@
-"""Detector variants beside the main experiment: the paper's ablations and its stability runs.
+"""Variants beside the main experiment: the paper's ablations, its stability runs and its
+demonstration-quality experiment.
 
-An experiment here changes only the detectors: how each trains (`augment`, `seed`) or its model
-(PrObe's components). Each variant runs in its own runs folder,
-`<runs>/variants/<experiment>/<variant>/`, whose task folder links the main run's collections,
-scene encoder, localizer, policies, rollouts and feature caches and holds its own detectors,
-calibrations and evaluations: every stage reads it through the same `RunLayout`, and nothing the
-main experiment wrote is touched. The baseline variant is the main experiment itself (no jobs).
-Its record (`results/<profile>/<experiment>/<task>_<policy>.json`, kind `detector_variants`)
-puts every variant's rollout-level AUROC and AUPRC side by side.
+A detector experiment changes only the detectors: how each trains (`augment`, `seed`) or its
+model (PrObe's components). A rollout experiment changes what the trained policies and
+detectors are given in the novel environments (sub-optimal demonstrations): the policies roll
+out again and the detectors score those rollouts. Each variant runs in its own runs folder,
+`<runs>/variants/<experiment>/<variant>/`, whose task folder links the main run's parts it
+does not change (collections, scene encoder, localizer, policies, feature caches; rollouts or
+detectors) and holds its own (detectors or rollouts, then calibrations and evaluations): every
+stage reads it through the same `RunLayout`, and nothing the main experiment wrote is touched.
+The baseline variant is the main experiment itself (no jobs). Its record
+(`results/<profile>/<experiment>/<task>_<policy>.json`, kind `detector_variants`) puts every
+variant's outcomes and rollout-level AUROC and AUPRC side by side.
 """
 
 from __future__ import annotations
@@ -25,19 +29,34 @@ from aed_models.layout import RunLayout
 
 logger = logging.getLogger(__name__)
 
-SHARED = ("data", "encoder", "localizer", "policies", "rollouts", "features")
-"""What a variant's task folder links from the main run (everything but detectors and evals)."""
+DETECTOR_SHARED = ("data", "encoder", "localizer", "policies", "rollouts", "features")
+"""What a detector variant's task folder links from the main run (all but detectors and evals)."""
+ROLLOUT_SHARED = ("data", "encoder", "localizer", "policies", "detectors", "features")
+"""What a rollout variant's task folder links (all but rollouts and evaluations)."""
+SUBOPTIMAL = "novel-suboptimal"
+"""`<runs>/<task>/data/<this>`: the novel environments' sub-optimal demonstrations."""
 
 
 @dataclass(frozen=True)
 class Variant:
-    """One detector variant: its label, the training fields it changes, the model fields it
-    changes (`baseline`: the main experiment's detectors, nothing to run)."""
+    """One variant: its label, the detector-training fields it changes, the detector-model
+    fields it changes, the sub-optimal demonstrations among the novel ones it gives the policy
+    and the detectors ("all": every one), or `baseline`: the main experiment itself."""
 
     name: str
     training: dict[str, Any] = field(default_factory=dict)
     model: dict[str, Any] = field(default_factory=dict)
+    suboptimal_demos: int | str = 0
     baseline: bool = False
+
+    @property
+    def rolls_out(self) -> bool:
+        """The policies roll out again (they are given other demonstrations)."""
+        return bool(self.suboptimal_demos)
+
+    def num_suboptimal(self, num_demos: int) -> int:
+        n = self.suboptimal_demos
+        return num_demos if n == "all" else min(int(n), num_demos)
 
 
 @dataclass(frozen=True)
@@ -92,6 +111,18 @@ EXPERIMENTS = {
             ),
             spread=True,
         ),
+        DetectorExperiment(
+            "demo_quality",
+            "Demonstration quality: the policies and detectors given sub-optimal demonstrations",
+            tasks=("PressButton",),
+            policies=("naive_dc", "dct", "scan"),
+            detectors=DETECTOR_NAMES,
+            variants=(
+                Variant("all optimal", baseline=True),
+                Variant("2 sub-optimal", suboptimal_demos=2),
+                Variant("all sub-optimal", suboptimal_demos="all"),
+            ),
+        ),
     )
 }
 
@@ -111,6 +142,7 @@ class LinkConfig:
     main: Path
     variant: Path
     task: str
+    parts: tuple[str, ...] = DETECTOR_SHARED
 
 
 def link_shared(cfg: LinkConfig) -> None:
@@ -118,7 +150,7 @@ def link_shared(cfg: LinkConfig) -> None:
     links, so the runs folder can move); an existing different file or link is refused."""
     folder = Path(cfg.variant) / cfg.task
     folder.mkdir(parents=True, exist_ok=True)
-    for part in SHARED:
+    for part in cfg.parts:
         target = Path(cfg.main) / cfg.task / part
         target.mkdir(parents=True, exist_ok=True)  # features may not exist yet
         link = folder / part
@@ -147,28 +179,65 @@ def train_variant(job: VariantTraining) -> Path:
     return train_detector(t, model)
 
 
+def experiment_stages(protocol: Any, experiment: DetectorExperiment) -> list[Any]:
+    """The stages an experiment needs once on `protocol`'s task, before its variants: the
+    novel environments' sub-optimal demonstrations, in the main run's data folder."""
+    from aed_eval.collect import run_collection
+    from aed_eval.demo import Stage, collection
+
+    if not any(v.rolls_out for v in experiment.variants):
+        return []
+    demos = collection(
+        protocol,
+        "novel",
+        num_demos=0,
+        num_suboptimal_demos=protocol.num_demos,
+        num_successes=0,
+        num_failures=0,
+        num_envs=protocol.novel_envs,
+        out=RunLayout(protocol.runs).data(protocol.task, SUBOPTIMAL),
+    )
+    name = f"{experiment.name}: collect sub-optimal demonstrations"
+    return [Stage(name, [(run_collection, demos)])]
+
+
 def variant_stages(protocol: Any, experiment: DetectorExperiment, variant: Variant) -> list[Any]:
-    """The stages of one non-baseline variant on `protocol`'s task: link, train the detectors,
-    calibrate, evaluate."""
+    """The stages of one non-baseline variant on `protocol`'s task: link, then train the
+    detectors and calibrate them (a detector variant) or roll the policies out again (a rollout
+    variant), then evaluate."""
     from aed_eval.calibrate import calibrate_detectors
-    from aed_eval.demo import Stage, calibrations, detector_trainings, evaluations
+    from aed_eval.demo import Stage, calibrations, detector_trainings, evaluations, rollouts
     from aed_eval.evaluate import evaluate_policy
+    from aed_eval.rollout import run_rollouts
 
     root = variant_root(protocol.runs, experiment.name, variant)
     c = dataclasses.replace(
         protocol, runs=root, policies=experiment.policies, detectors=experiment.detectors
     )
-    trainings = [
-        VariantTraining(dataclasses.replace(t, **variant.training), dict(variant.model))
-        for t in detector_trainings(c)
-    ]
     prefix = f"{experiment.name} / {variant.name}"
-    return [
-        Stage(f"{prefix}: link", [(link_shared, LinkConfig(protocol.runs, root, c.task))]),
-        Stage(f"{prefix}: train detectors", [(train_variant, t) for t in trainings]),
-        Stage(f"{prefix}: calibrate", [(calibrate_detectors, x) for x in calibrations(c)]),
-        Stage(f"{prefix}: evaluate", [(evaluate_policy, x) for x in evaluations(c)]),
-    ]
+    shared = ROLLOUT_SHARED if variant.rolls_out else DETECTOR_SHARED
+    link = LinkConfig(protocol.runs, root, c.task, shared)
+    stages = [Stage(f"{prefix}: link", [(link_shared, link)])]
+    given: dict[str, Any] = {}
+    if variant.rolls_out:
+        given = {
+            "num_suboptimal_demos": variant.num_suboptimal(c.num_demos),
+            "suboptimal_demos": RunLayout(protocol.runs).data(c.task, SUBOPTIMAL),
+        }
+        novel = [dataclasses.replace(r, **given) for r in rollouts(c) if r.split == "novel"]
+        stages.append(Stage(f"{prefix}: roll out policies", [(run_rollouts, r) for r in novel]))
+    else:
+        trainings = [
+            VariantTraining(dataclasses.replace(t, **variant.training), dict(variant.model))
+            for t in detector_trainings(c)
+        ]
+        stages += [
+            Stage(f"{prefix}: train detectors", [(train_variant, t) for t in trainings]),
+            Stage(f"{prefix}: calibrate", [(calibrate_detectors, x) for x in calibrations(c)]),
+        ]
+    scored = [dataclasses.replace(e, **given) for e in evaluations(c)]
+    stages.append(Stage(f"{prefix}: evaluate", [(evaluate_policy, x) for x in scored]))
+    return stages
 
 
 def variants_record(

@@ -391,3 +391,61 @@ def test_error_correction_replays_the_stored_rollouts_and_corrects_at_alarms(pip
     assert all(r["corrections"] == 1 and r["first_alarm"] == 0 for r in replays)
     written = write_result(tmp_path / "correction.json", always)
     assert "| lstm_ed |" in written[1].read_text()
+
+
+@pytest.mark.slow
+def test_embeddings_script_maps_the_labelled_novel_episodes(pipeline, tmp_path):
+    from aed_eval.embeddings import EmbeddingsConfig, embeddings_record
+
+    cfg, _ = pipeline
+    figure = dict(task=TASK, policy="naive_dc", detectors=("probe", "lstm_ed"), runs=cfg.runs)
+    record = embeddings_record(EmbeddingsConfig(**figure, num_episodes=2, num_demos=1))
+    frames = sum(e["frames"] for e in record["episodes"])
+    assert [e["onset_frame"] is None for e in record["episodes"]] == [True, False]
+    for d in ("probe", "lstm_ed"):
+        assert len(record["detectors"][d]["points"]) == frames
+        assert 0.0 <= record["detectors"][d]["label_agreement"] <= 1.0
+    with pytest.raises(ValueError, match="4 episodes asked for"):
+        embeddings_record(EmbeddingsConfig(**figure, num_episodes=4, num_demos=1))
+
+
+@pytest.mark.slow
+def test_a_rollout_variant_rolls_out_with_suboptimal_demonstrations(pipeline, tmp_path):
+    from aed_eval.variants import (
+        DetectorExperiment,
+        Variant,
+        experiment_stages,
+        variant_root,
+        variant_stages,
+        variants_record,
+    )
+    from aed_tasks import trajectory
+
+    cfg, _ = pipeline
+    experiment = DetectorExperiment(
+        "quality_check",
+        "quality",
+        tasks=(TASK,),
+        policies=("naive_dc",),
+        detectors=("probe", "lstm_ed"),
+        variants=(
+            Variant("optimal", baseline=True),
+            Variant("sub-optimal", suboptimal_demos="all"),
+        ),
+    )
+    for stage in experiment_stages(cfg, experiment) + variant_stages(
+        cfg, experiment, experiment.variants[1]
+    ):
+        for fn, job in stage.jobs:
+            fn(job)
+    layout = RunLayout(variant_root(cfg.runs, "quality_check", experiment.variants[1]))
+    assert (layout.root / TASK / "detectors").is_symlink()
+    assert not (layout.root / TASK / "rollouts").is_symlink()
+    demos = trajectory.scan_collection(RunLayout(cfg.runs).data(TASK, "novel-suboptimal"))
+    assert [r.suboptimal for r in demos.episodes()] == [True]
+    rollouts = trajectory.scan_collection(layout.rollouts(TASK, "naive_dc", "novel"))
+    assert len(list(rollouts.episodes())) == 2
+    results = json.loads((layout.evaluation(TASK, "naive_dc") / "results.json").read_text())
+    assert results["demos"] == {"count": 1, "suboptimal": 1}
+    record = variants_record(cfg.runs, experiment, TASK, "naive_dc")
+    assert list(record["variants"]) == ["optimal", "sub-optimal"]

@@ -6,6 +6,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
 
 import aed_models.data
@@ -38,3 +39,36 @@ def test_episode_scorer_takes_the_running_max_of_detectors_without_memory(monkey
         scores["svdd_ed"], torch.cummax(per_frame["svdd_ed"], 0).values.double().numpy()
     )
     np.testing.assert_allclose(scores["lstm_ed"], per_frame["lstm_ed"].double().numpy())
+
+
+def test_demonstrations_mix_optimal_and_suboptimal_ones_or_say_what_is_missing(monkeypatch):
+    from aed_eval import scoring
+    from aed_tasks.trajectory import EpisodeRef
+
+    def demo(env: int, seed: int, suboptimal: bool) -> EpisodeRef:
+        return EpisodeRef(
+            Path("x.h5"),
+            f"traj_{seed}",
+            "demo",
+            "PressButton",
+            "novel",
+            env,
+            9,
+            seed,
+            True,
+            suboptimal=suboptimal,
+        )
+
+    refs = [demo(0, s, s >= 3) for s in range(6)]
+    collection = type("C", (), {"episodes": lambda self: refs})()
+    monkeypatch.setattr(scoring.trajectory, "scan_collection", lambda root: collection)
+    optimal = scoring.Demonstrations(Path("novel"), "novel", 3)
+    assert [r.seed for r in optimal.refs[0]] == [0, 1, 2]
+    mixed = scoring.Demonstrations(Path("novel"), "novel", 3, num_suboptimal=2)
+    assert [(r.seed, r.suboptimal) for r in mixed.refs[0]] == [(0, False), (3, True), (4, True)]
+    refs += [demo(1, s, False) for s in range(3)]  # environment 1 has no sub-optimal one
+    assert scoring.Demonstrations(Path("novel"), "novel", 3).envs() == [0, 1]
+    with pytest.raises(ValueError, match=r"environments \[1\].*1 optimal and 2 sub-optimal"):
+        scoring.Demonstrations(Path("novel"), "novel", 3, num_suboptimal=2)
+    with pytest.raises(ValueError, match="num_suboptimal=4"):
+        scoring.Demonstrations(Path("novel"), "novel", 3, num_suboptimal=4)

@@ -44,7 +44,13 @@ def renderer(kind: str) -> Callable[[Renderer], Renderer]:
 
 def renderers() -> dict[str, Renderer]:
     """Every kind's renderer (importing the modules that register them)."""
-    from aed_eval.results import correction, detector_variants, tables, timing  # noqa: F401
+    from aed_eval.results import (  # noqa: F401
+        correction,
+        detector_variants,
+        embeddings,
+        tables,
+        timing,
+    )
 
     return dict(_RENDERERS)
 

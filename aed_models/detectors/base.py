@@ -100,6 +100,28 @@ class ErrorDetector(nn.Module):
         """Score of the newest frame (4, H, W), or of the policy's newest (f_h, f_zeta)."""
         raise NotImplementedError
 
+    @torch.no_grad()
+    def embed(
+        self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None
+    ) -> torch.Tensor:
+        """(B, T, E) per-frame embeddings of padded rollouts: what the detector's last layer
+        reads (the input of the last `nn.Linear` of its `classifier`), for visualisation."""
+        classifier = getattr(self, "classifier", None)
+        linears = [
+            m for m in (classifier.modules() if classifier else ()) if isinstance(m, nn.Linear)
+        ]
+        if not linears:
+            raise NotImplementedError(f"{self.name}: no classifier layer whose input to embed")
+        seen: list[torch.Tensor] = []
+        hook = linears[-1].register_forward_pre_hook(lambda _, args: seen.append(args[0]))
+        try:
+            self.score(rollouts, demos, policy_features)
+        finally:
+            hook.remove()
+        if len(seen) != 1 or seen[0].dim() != 3:
+            raise RuntimeError(f"{self.name}: its classifier did not read one (B, T, E) batch")
+        return seen[0]
+
     # -- bookkeeping ------------------------------------------------------------------------
     def upgrade_state_dict(self, state_dict: dict[str, Any]) -> dict[str, Any]:
         """A state dict of an older layout in today's keys (identity unless a detector renamed

@@ -134,6 +134,33 @@ def test_offline_scores_equal_online_steps(name):
         torch.testing.assert_close(torch.tensor(online), offline[i, :length], atol=1e-5, rtol=0)
 
 
+@pytest.mark.parametrize("name", ["svdd_ed", "taskemb_ed", "lstm_ed", "dct_ed", "probe"])
+def test_embeddings_are_what_the_last_layer_scores(name):
+    """embed() returns (B, T, E): the probability detectors' last Linear maps it to the logits
+    of their scores, SVDDED's distance to its centres maps it to its scores."""
+    from aed_models.detectors.base import steps_of
+
+    detector = tiny(name).eval()
+    batch, features = make_batch(seed=4)
+    rollouts, demos = batch["rollouts"], batch["demos"]
+    embeddings = detector.embed(rollouts, demos, features)
+    mask = rollouts["mask"]
+    assert embeddings.shape[:2] == mask.shape and embeddings.shape[2] >= 1
+    if name == "svdd_ed":
+        rescored = detector.distance(embeddings, steps_of(rollouts, mask), detector.centres(demos))
+    else:
+        last = [m for m in detector.classifier.modules() if isinstance(m, torch.nn.Linear)][-1]
+        rescored = torch.sigmoid(last(embeddings).squeeze(-1))
+    scores = detector.score(rollouts, demos, features)
+    torch.testing.assert_close(rescored * mask, scores, atol=1e-5, rtol=0)
+
+
+def test_a_detector_without_a_classifier_says_it_has_no_embedding():
+    batch, features = make_batch()
+    with pytest.raises(NotImplementedError, match="rnd_oe: no classifier"):
+        tiny("rnd_oe").eval().embed(batch["rollouts"], batch["demos"], features)
+
+
 @pytest.mark.parametrize("name", sorted(DETECTORS))
 def test_checkpoint_round_trip_and_refusal(name, tmp_path):
     detector = tiny(name).eval()

@@ -121,6 +121,15 @@ class SVDDED(ErrorDetector):
         return self.distance(embeddings, steps_of(rollouts, mask), self.centres(demos)) * mask
 
     @torch.no_grad()
+    def embed(
+        self, rollouts: Batch, demos: Batch | None = None, policy_features: Any = None
+    ) -> torch.Tensor:
+        """(B, T, D) the encoder's embeddings, whose distances to the centres are the scores."""
+        from aed_models.nn import encode_frames
+
+        return encode_frames(self.encoder, *rollout_frames(rollouts))
+
+    @torch.no_grad()
     def reset(self, demos: Batch | None = None) -> None:
         self._centres, self._t = self.centres(demos), 0
 
