@@ -117,9 +117,8 @@ def test_help_shows_the_presets_numbers(command, capsys):
     assert exit_.value.code == 0
     text = capsys.readouterr().out
     flat = " ".join(text.replace("│", " ").split())
-    assert flat.count("(default: None)") == flat.count("--ray-address"), (
-        flat
-    )  # only the Ray address may be unset
+    optional = ("--ray-address", "--suboptimal-demos")  # unset means: no cluster, same as --demos
+    assert flat.count("(default: None)") == sum(flat.count(f"{o} ") for o in optional), flat
     sized = {
         "train-policy": ("--epochs INT", "(default: 100)", "(default: 5 8)"),
         "train-detector": (
