@@ -7,6 +7,7 @@ from collections import Counter, defaultdict
 from pathlib import Path
 from typing import Any, Literal
 
+import h5py
 import numpy as np
 import tyro
 
@@ -52,11 +53,28 @@ def summarize(root: Path, check: trajectory.Check = "quick") -> dict[str, Any]:
             role: float(np.mean([e.success for e in episodes if e.role == role]))
             for role in lengths
         },
+        "stages_reached": _stages_reached(outcomes),
         "retries": _retries(collection),
         "disk_bytes": disk,
         "bytes_per_frame": disk / frames if frames else 0.0,
         "leftovers": [p.name for p in collection.temporaries + collection.uncommitted],
     }
+
+
+def _stages_reached(episodes: list[trajectory.EpisodeRef]) -> dict[str, dict[str, int]]:
+    """How far each episode got, by outcome: its highest recorded stage (of `num_stages`).
+
+    The lengths say nothing of a rollout that ran its horizon; this says where it stopped."""
+    reached: dict[str, Counter] = defaultdict(Counter)
+    by_file: dict[Path, list[trajectory.EpisodeRef]] = defaultdict(list)
+    for e in episodes:
+        by_file[e.path].append(e)
+    for path, refs in by_file.items():
+        with h5py.File(path, "r") as h5:
+            for e in refs:
+                stage = int(h5[f"{e.traj}/stage"][()].max())
+                reached["success" if e.success else "failure"][str(stage)] += 1
+    return {outcome: dict(sorted(c.items())) for outcome, c in sorted(reached.items())}
 
 
 def _retries(collection: trajectory.Collection) -> dict[str, Any]:
@@ -97,6 +115,11 @@ def format_summary(info: dict[str, Any]) -> str:
         lines.append(f"  {role:<16}{_lengths(s)}   success {info['success_rate'][role]:.0%}")
     for outcome, s in info["lengths_by_outcome"].items():
         lines.append(f"  {'all, ' + outcome:<16}{_lengths(s)}")
+    for outcome, counts in info["stages_reached"].items():
+        lines.append(
+            f"stage reached, {outcome + ':':<9}"
+            + ", ".join(f"{n} reached {stage}" for stage, n in counts.items())
+        )
     retries = info["retries"]
     lines.append(
         f"retries:        {retries['rejected']} rejected tries "

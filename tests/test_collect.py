@@ -184,11 +184,19 @@ def test_data_info_counts_roles_and_kinds(rgbd_collection):
         "demo": 1,
     }
     assert sum(info["error_kinds"].values()) == 2 and info["bytes_per_frame"] > 0
+    from aed_tasks.tasks.pick_place import PickPlaceEnv
+
+    reached = info["stages_reached"]  # successes end in the last stage; failures never do
+    assert sum(reached["success"].values()) == 2 and sum(reached["failure"].values()) == 2
+    last = PickPlaceEnv.num_stages
+    assert reached["success"] == {str(last): 2}
+    assert all(int(stage) < last for stage in reached["failure"])
     result = subprocess.run(
         [AED, "data-info", str(rgbd_collection)], capture_output=True, text=True, timeout=120
     )
     assert result.returncode == 0, result.stderr
     assert "4 episodes" in result.stdout and "agent_failure 2" in result.stdout
+    assert f"stage reached, success: 2 reached {PickPlaceEnv.num_stages}" in result.stdout
 
 
 def test_exploration_episodes_move_the_arm_anywhere_and_only_the_encoder_reads_them(tmp_path):
