@@ -173,7 +173,7 @@ class CollectConfig:
             "split": split,
             "profile": profile,
             "out": RunLayout(runs).data(task, split),
-            "num_envs": counts.base_envs(size) if base else (counts.novel_envs or size),
+            "num_envs": counts.base_envs(size) if base else counts.rollout_envs(size),
             "num_demos": counts.num_demos,
             "num_successes": counts.num_successes if base else 0,
             "num_failures": counts.num_failures if base else 0,

@@ -127,7 +127,7 @@ class DemoConfig(Protocol):
             "profile": profile,
             "runs": runs,
             "train_envs": counts.training_envs(sizes["base"]),
-            "novel_envs": counts.novel_envs or sizes["novel"],
+            "novel_envs": counts.rollout_envs(sizes["novel"]),
             "horizon": task_cls.eval_horizon,
         }
         return cls(**{**preset, **overrides})

@@ -20,9 +20,10 @@ class Protocol:
     """Counts of one profile (per environment unless said).
 
     Args:
-        train_envs: base environments the models train on (0: all but the calibration ones).
+        train_envs: base environments the models train on, at most (0, or a catalogue too
+            small for it: all but the calibration ones).
         calibration_envs: further base environments, held out of all training, for calibration.
-        novel_envs: novel environments collected and rolled out in (0: all).
+        novel_envs: novel environments collected and rolled out in, at most (0: all).
         num_demos: demonstrations per environment (and given to the policy and detectors).
         num_successes: expert (agent) successes per base environment.
         num_failures: expert (agent) failures per training environment.
@@ -48,13 +49,16 @@ class Protocol:
 
     def training_envs(self, catalogue_size: int) -> int:
         """Base environments the models train on: the first ones of a collection."""
-        return self.train_envs or catalogue_size - self.calibration_envs
+        available = catalogue_size - self.calibration_envs
+        return min(self.train_envs, available) if self.train_envs else available
 
     def base_envs(self, catalogue_size: int) -> int:
         """Base environments a collection covers: training and calibration ones."""
-        if not self.train_envs:
-            return catalogue_size
-        return min(catalogue_size, self.train_envs + self.calibration_envs)
+        return self.training_envs(catalogue_size) + self.calibration_envs
+
+    def rollout_envs(self, catalogue_size: int) -> int:
+        """Novel environments collected and rolled out in."""
+        return min(self.novel_envs, catalogue_size) if self.novel_envs else catalogue_size
 
 
 PROTOCOLS: dict[str, Protocol] = {
@@ -72,16 +76,16 @@ PROTOCOLS: dict[str, Protocol] = {
         policies=("naive_dc", "dct", "scan"),
     ),
     "mini": Protocol(
-        train_envs=4,
-        calibration_envs=3,
-        novel_envs=4,
+        train_envs=23,
+        calibration_envs=4,
+        novel_envs=18,
         num_demos=5,
         num_successes=10,
         num_failures=10,
         num_explore=12,
         labelled=1,
         rollouts=5,
-        calibration_rollouts=5,
+        calibration_rollouts=10,
         policies=("naive_dc", "dct", "scan"),
     ),
     "demo": Protocol(

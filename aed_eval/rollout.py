@@ -159,7 +159,7 @@ class RolloutConfig:
             "checkpoint": layout.policy(task, policy),
             "demos": layout.data(task, split),
             "out": layout.rollouts(task, policy, split),
-            "num_envs": counts.novel_envs or task_cls.catalogue_sizes[split],
+            "num_envs": counts.rollout_envs(task_cls.catalogue_sizes[split]),
             "num_episodes": counts.rollouts,
             "num_demos": counts.num_demos,
             "horizon": task_cls.eval_horizon,

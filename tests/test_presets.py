@@ -144,3 +144,18 @@ def test_bad_profile_or_model_is_one_line_and_exit_2(caplog, capsys):
         status, errors, _ = aed(args, caplog, capsys)
         assert status == 2 and len(errors) == 1 and named in errors[0], (args, errors)
         assert "\n" not in errors[0]
+
+
+@pytest.mark.parametrize(
+    ("task", "base", "train_envs", "novel"),
+    [("CloseDrawer", 18, 14, 18), ("PressButton", 27, 23, 18), ("FactoryPacking", 27, 23, 12)],
+)
+def test_mini_counts_fit_every_catalogue(task, base, train_envs, novel):
+    """Mini trains on at most 23 base environments and rolls out in at most 18 novel ones; a
+    smaller catalogue gives all it has, the 4 calibration environments always held out."""
+    assert parsed("collect", "--task", task, "--split", "base").num_envs == base
+    assert parsed("collect", "--task", task, "--split", "novel").num_envs == novel
+    assert parsed("train-policy", "--task", task, "--policy", "scan").num_envs == train_envs
+    assert parsed("rollout", "--task", task, "--policy", "scan").num_envs == novel
+    demo = DemoConfig.from_preset(task, "mini")
+    assert demo.calibration_env_indices == tuple(range(train_envs, base))
