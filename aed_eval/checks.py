@@ -15,6 +15,15 @@ def task_class(name: str) -> type:
         raise ValueError(f"task={name!r}: {e.args[0]}") from None
 
 
+def check_camera(name: str) -> str:
+    """`name` is one of the tasks' cameras (`aed_tasks.base_env.CAMERAS`)."""
+    from aed_tasks.base_env import CAMERAS
+
+    if name not in CAMERAS:
+        raise ValueError(f"camera={name!r}: known {sorted(CAMERAS)}")
+    return name
+
+
 def check_detectors(names: Iterable[str]) -> None:
     """Every name is a registered detector."""
     from aed_models.detectors import DETECTORS

@@ -22,7 +22,7 @@ import tyro
 
 from aed_eval import metrics
 from aed_eval.calibrate import SOURCES, load_policy_checked, read_calibration, threshold_at
-from aed_eval.checks import check_detectors, check_held_out, task_class
+from aed_eval.checks import check_camera, check_detectors, check_held_out, task_class
 from aed_eval.rollout import paper_ending, stored_rollouts
 from aed_eval.scoring import (
     DETECTOR_NAMES,
@@ -71,6 +71,9 @@ class EvaluateConfig:
     """Of the `num_demos`, how many are sub-optimal (the demonstration-quality experiment)."""
     suboptimal_demos: Path | None = None
     """Collection holding the sub-optimal demonstrations (default: `demos`)."""
+    camera: str = "front"
+    """Camera the rollouts, demonstrations and labelled episodes were recorded through
+    (front_shift: the viewpoint-shift experiment)."""
     window: int = 10
     """Frames after a labelled onset within which an alarm counts as on time."""
     bootstrap: int = metrics.NUM_BOOTSTRAP
@@ -99,6 +102,7 @@ class EvaluateConfig:
                 f"num_demos={self.num_demos}, window={self.window}, bootstrap={self.bootstrap}: "
                 "num_demos >= 1, window >= 0, bootstrap >= 1"
             )
+        check_camera(self.camera)
         layout = RunLayout(self.runs)
         self.rollouts = Path(self.rollouts or layout.rollouts(self.task, self.policy, self.split))
         self.demos = Path(self.demos or layout.data(self.task, self.split))
@@ -275,7 +279,7 @@ def evaluate_policy(cfg: EvaluateConfig) -> dict[str, Any]:
 
     roots = [Path(cfg.demos)] + ([Path(cfg.labelled)] if cfg.labelled is not None else [])
     roots += [Path(cfg.suboptimal_demos)] if cfg.suboptimal_demos is not None else []
-    demos = Demonstrations(roots, cfg.split, cfg.num_demos, cfg.num_suboptimal_demos)
+    demos = Demonstrations(roots, cfg.split, cfg.num_demos, cfg.num_suboptimal_demos, cfg.camera)
     scorer = EpisodeScorer(detectors, policy, demos)
     names = [d.name for d in detectors]
     per_detector = score_all(scorer, refs, names, f"score {cfg.policy} rollouts", cfg.progress)
@@ -296,6 +300,7 @@ def evaluate_policy(cfg: EvaluateConfig) -> dict[str, Any]:
         "policy_sha256": policy_sha,
         "split": cfg.split,
         "demos": {"count": cfg.num_demos, "suboptimal": cfg.num_suboptimal_demos},
+        "camera": cfg.camera,
         "ending": stored.ending,
         "endings": list(views),
         "diagnostic": bool(overlaps),

@@ -8,10 +8,10 @@ jobs that finished: a run skips every job the ledger holds with the same config 
 the first one that did not finish (each stage resumes its own folder). Stop it at any time, run
 the same command again. `--plan` prints what is done and what is left, and runs nothing.
 
-The ablations, the stability runs and the demonstration-quality experiment (`--experiments
-rollout_augmentation probe_components seeds demo_quality`, `aed_eval.variants`) add variants on
-top of the main experiment's stages for their tasks (Pick & Place and Press Button, as the
-paper), and write their records under `results/<profile>/`.
+The ablations, the stability runs, the demonstration-quality and viewpoint-shift experiments
+(`--experiments rollout_augmentation probe_components seeds demo_quality viewpoint`,
+`aed_eval.variants`) add variants on top of the main experiment's stages for their tasks (Pick &
+Place and Press Button, as the paper), and write their records under `results/<profile>/`.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ class ExperimentsConfig:
             demo (minutes a task).
         experiments: main (every task x policy x detector), and any of the variant experiments
             of `aed_eval.variants` (rollout_augmentation, probe_components, seeds,
-            demo_quality).
+            demo_quality, viewpoint).
         tasks: the tasks of every experiment, in order (default: each experiment's own: all
             seven, the paper's order, for main; the paper's task for each variant experiment).
         runs: root of everything written (default: runs/<profile>).
@@ -250,12 +250,12 @@ def experiments(cfg: Annotated[ExperimentsConfig, tyro.conf.arg(name="")]) -> in
     from aed_eval.report import ReportConfig, make_report
 
     jobs = plan_jobs(cfg)
+    if cfg.plan:  # the ledger is replaced atomically: readable while a run writes it
+        print("\n".join(status_lines(jobs, Ledger(cfg.runs / LEDGER))))
+        return 0
     cfg.runs.mkdir(parents=True, exist_ok=True)
     with folder_lock(cfg.runs / "experiments"):
         ledger = Ledger(cfg.runs / LEDGER)
-        if cfg.plan:
-            print("\n".join(status_lines(jobs, ledger)))
-            return 0
         start = time.perf_counter()
         ran = run_jobs(jobs, ledger)
         path = make_report(

@@ -28,7 +28,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 import tyro
 
-from aed_eval.checks import task_class
+from aed_eval.checks import check_camera, task_class
 from aed_eval.collect import episode_seed, plain_value
 from aed_eval.metrics import rate_interval
 from aed_eval.presets import protocol
@@ -90,6 +90,9 @@ class RolloutConfig:
     """Of the `num_demos`, how many are sub-optimal (the demonstration-quality experiment)."""
     suboptimal_demos: Path | None = None
     """Collection holding the sub-optimal demonstrations (default: `demos`)."""
+    camera: str = "front"
+    """Camera the policy sees through (front_shift: the viewpoint-shift experiment); the
+    demonstrations must have been recorded through it (`aed collect --cameras`)."""
     shard_size: int = 10
     """Episodes per shard file (the unit of atomic writes and of resuming)."""
     workers: int = 1
@@ -136,6 +139,7 @@ class RolloutConfig:
         )
         if self.suboptimal_demos is not None:
             self.suboptimal_demos = Path(self.suboptimal_demos)
+        check_camera(self.camera)
 
     @classmethod
     def from_preset(
@@ -181,6 +185,8 @@ class RolloutConfig:
         identity = {k: plain_value(getattr(self, k)) for k in IDENTITY}
         if self.num_suboptimal_demos:  # only then, so folders written before it still resume
             identity["num_suboptimal_demos"] = self.num_suboptimal_demos
+        if self.camera != "front":
+            identity["camera"] = self.camera
         return identity
 
     def demonstrations(self) -> Demonstrations:
@@ -188,7 +194,9 @@ class RolloutConfig:
         roots = [self.demos]
         if self.suboptimal_demos is not None and self.suboptimal_demos != self.demos:
             roots.append(self.suboptimal_demos)
-        return Demonstrations(roots, self.split, self.num_demos, self.num_suboptimal_demos)
+        return Demonstrations(
+            roots, self.split, self.num_demos, self.num_suboptimal_demos, self.camera
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return {k: plain_value(v) for k, v in asdict(self).items()}
@@ -250,9 +258,11 @@ class RolloutRunner(EpisodeRunner):
 
         super().__init__(cfg if cfg.policy_sha256 else cfg.with_checkpoint_hash())
         self.policy = load_policy(cfg.checkpoint, name=cfg.policy) if policy is None else policy
+        self.policy.camera = cfg.camera
         env = gym.make(
             aed_tasks.env_id(cfg.task, cfg.split),
             obs_mode="rgbd",
+            cameras=(cfg.camera,),
             max_episode_steps=cfg.horizon,
             terminate_on_success=False,
         )

@@ -66,7 +66,7 @@ class EpisodeScorer:
         self.detectors = list(detectors)
         self.policy = policy
         self.demos = demos
-        self.reader = EpisodeReader()
+        self.reader = EpisodeReader(demos.camera)  # the camera the demonstrations were seen by
 
     def close(self) -> None:
         self.reader.close()
@@ -124,7 +124,7 @@ class Demonstrations:
     """The demonstrations of each environment of one or more collections: the first
     `num_demos - num_suboptimal` optimal ones, then the first `num_suboptimal` sub-optimal ones
     (a failed first attempt, then success), read when first asked for and padded (`frames`,
-    `mask`).
+    `mask`), through `camera` (`front_shift`: the viewpoint-shift experiment).
 
     Only the latest environment's frames are kept: as float tensors 5 demonstrations of about
     100 frames take ~150 MB, so holding every novel environment's would take gigabytes, while
@@ -132,12 +132,17 @@ class Demonstrations:
     """
 
     def __init__(
-        self, roots: Path | Sequence[Path], split: str, num_demos: int, num_suboptimal: int = 0
+        self,
+        roots: Path | Sequence[Path],
+        split: str,
+        num_demos: int,
+        num_suboptimal: int = 0,
+        camera: str = "front",
     ):
         if not 0 <= num_suboptimal <= num_demos:
             raise ValueError(f"num_suboptimal={num_suboptimal}: 0..num_demos={num_demos}")
         roots = [roots] if isinstance(roots, (str, Path)) else list(roots)
-        self.num_demos, self.num_suboptimal = num_demos, num_suboptimal
+        self.num_demos, self.num_suboptimal, self.camera = num_demos, num_suboptimal, camera
         optimal: dict[int, list[trajectory.EpisodeRef]] = {}
         suboptimal: dict[int, list[trajectory.EpisodeRef]] = {}
         for root in roots:
@@ -172,7 +177,7 @@ class Demonstrations:
         from aed_models.data import EpisodeReader, pad_sequences
 
         if self._latest is None or self._latest[0] != env_index:
-            reader = EpisodeReader()
+            reader = EpisodeReader(self.camera)
             try:
                 demos = pad_sequences(
                     [reader.read(r) for r in self.refs[env_index][: self.num_demos]]

@@ -1,10 +1,11 @@
 """Variants beside the main experiment: the paper's ablations, its stability runs and its
-demonstration-quality experiment.
+demonstration-quality and viewpoint-shift experiments.
 
 A detector experiment changes only the detectors: how each trains (`augment`, `seed`) or its
 model (PrObe's components). A rollout experiment changes what the trained policies and
-detectors are given in the novel environments (sub-optimal demonstrations): the policies roll
-out again and the detectors score those rollouts. Each variant runs in its own runs folder,
+detectors are given in the novel environments (sub-optimal demonstrations, or every novel
+episode seen through another camera): the policies roll out again and the detectors score
+those rollouts. Each variant runs in its own runs folder,
 `<runs>/variants/<experiment>/<variant>/`, whose task folder links the main run's parts it
 does not change (collections, scene encoder, localizer, policies, feature caches; rollouts or
 detectors) and holds its own (detectors or rollouts, then calibrations and evaluations): every
@@ -37,22 +38,30 @@ SUBOPTIMAL = "novel-suboptimal"
 """`<runs>/<task>/data/<this>`: the novel environments' sub-optimal demonstrations."""
 
 
+def camera_data(camera: str) -> str:
+    """`<runs>/<task>/data/<this>`: the novel environments' demonstrations and labelled
+    episodes recorded through `camera`."""
+    return f"novel-{camera}"
+
+
 @dataclass(frozen=True)
 class Variant:
     """One variant: its label, the detector-training fields it changes, the detector-model
     fields it changes, the sub-optimal demonstrations among the novel ones it gives the policy
-    and the detectors ("all": every one), or `baseline`: the main experiment itself."""
+    and the detectors ("all": every one), the camera every novel episode is seen through (the
+    models trained on `front`), or `baseline`: the main experiment itself."""
 
     name: str
     training: dict[str, Any] = field(default_factory=dict)
     model: dict[str, Any] = field(default_factory=dict)
     suboptimal_demos: int | str = 0
+    camera: str = "front"
     baseline: bool = False
 
     @property
     def rolls_out(self) -> bool:
-        """The policies roll out again (they are given other demonstrations)."""
-        return bool(self.suboptimal_demos)
+        """The policies roll out again (other demonstrations, or another camera)."""
+        return bool(self.suboptimal_demos) or self.camera != "front"
 
     def num_suboptimal(self, num_demos: int) -> int:
         n = self.suboptimal_demos
@@ -123,6 +132,18 @@ EXPERIMENTS = {
                 Variant("all sub-optimal", suboptimal_demos="all"),
             ),
         ),
+        DetectorExperiment(
+            "viewpoint",
+            "Viewpoint shift: the policy and detectors trained on `front`, deployed through "
+            "`front_shift`",
+            tasks=("PressButton",),
+            policies=("dct",),
+            detectors=DETECTOR_NAMES,
+            variants=(
+                Variant("front", baseline=True),
+                Variant("front_shift", camera="front_shift"),
+            ),
+        ),
     )
 }
 
@@ -180,25 +201,41 @@ def train_variant(job: VariantTraining) -> Path:
 
 
 def experiment_stages(protocol: Any, experiment: DetectorExperiment) -> list[Any]:
-    """The stages an experiment needs once on `protocol`'s task, before its variants: the
-    novel environments' sub-optimal demonstrations, in the main run's data folder."""
+    """The stages an experiment needs once on `protocol`'s task, before its variants, in the
+    main run's data folder: the novel environments' sub-optimal demonstrations, or their
+    demonstrations and labelled episodes through another camera (the same seeds as the main
+    run's, so the same episodes seen from elsewhere)."""
     from aed_eval.collect import run_collection
     from aed_eval.demo import Stage, collection
 
-    if not any(v.rolls_out for v in experiment.variants):
-        return []
-    demos = collection(
-        protocol,
-        "novel",
-        num_demos=0,
-        num_suboptimal_demos=protocol.num_demos,
-        num_successes=0,
-        num_failures=0,
-        num_envs=protocol.novel_envs,
-        out=RunLayout(protocol.runs).data(protocol.task, SUBOPTIMAL),
-    )
-    name = f"{experiment.name}: collect sub-optimal demonstrations"
-    return [Stage(name, [(run_collection, demos)])]
+    layout, stages = RunLayout(protocol.runs), []
+    if any(v.suboptimal_demos for v in experiment.variants):
+        demos = collection(
+            protocol,
+            "novel",
+            num_demos=0,
+            num_suboptimal_demos=protocol.num_demos,
+            num_successes=0,
+            num_failures=0,
+            num_envs=protocol.novel_envs,
+            out=layout.data(protocol.task, SUBOPTIMAL),
+        )
+        name = f"{experiment.name}: collect sub-optimal demonstrations"
+        stages.append(Stage(name, [(run_collection, demos)]))
+    for camera in sorted({v.camera for v in experiment.variants} - {"front"}):
+        seen = collection(
+            protocol,
+            "novel",
+            num_demos=protocol.num_demos,
+            num_successes=protocol.labelled,
+            num_failures=protocol.labelled,
+            num_envs=protocol.novel_envs,
+            cameras=(camera,),
+            out=layout.data(protocol.task, camera_data(camera)),
+        )
+        name = f"{experiment.name}: collect novel episodes through {camera}"
+        stages.append(Stage(name, [(run_collection, seen)]))
+    return stages
 
 
 def variant_stages(protocol: Any, experiment: DetectorExperiment, variant: Variant) -> list[Any]:
@@ -219,11 +256,17 @@ def variant_stages(protocol: Any, experiment: DetectorExperiment, variant: Varia
     link = LinkConfig(protocol.runs, root, c.task, shared)
     stages = [Stage(f"{prefix}: link", [(link_shared, link)])]
     given: dict[str, Any] = {}
-    if variant.rolls_out:
+    scored: dict[str, Any] = {}
+    if variant.suboptimal_demos:
         given = {
             "num_suboptimal_demos": variant.num_suboptimal(c.num_demos),
             "suboptimal_demos": RunLayout(protocol.runs).data(c.task, SUBOPTIMAL),
         }
+    if variant.camera != "front":
+        seen = RunLayout(protocol.runs).data(c.task, camera_data(variant.camera))
+        given |= {"camera": variant.camera, "demos": seen}
+        scored = {"labelled": seen}
+    if variant.rolls_out:
         novel = [dataclasses.replace(r, **given) for r in rollouts(c) if r.split == "novel"]
         stages.append(Stage(f"{prefix}: roll out policies", [(run_rollouts, r) for r in novel]))
     else:
@@ -235,8 +278,8 @@ def variant_stages(protocol: Any, experiment: DetectorExperiment, variant: Varia
             Stage(f"{prefix}: train detectors", [(train_variant, t) for t in trainings]),
             Stage(f"{prefix}: calibrate", [(calibrate_detectors, x) for x in calibrations(c)]),
         ]
-    scored = [dataclasses.replace(e, **given) for e in evaluations(c)]
-    stages.append(Stage(f"{prefix}: evaluate", [(evaluate_policy, x) for x in scored]))
+    evaluated = [dataclasses.replace(e, **given, **scored) for e in evaluations(c)]
+    stages.append(Stage(f"{prefix}: evaluate", [(evaluate_policy, x) for x in evaluated]))
     return stages
 
 

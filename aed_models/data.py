@@ -240,6 +240,11 @@ class EpisodeReader:
             )
         rgb = depth = None
         if images:
+            if self.camera not in group["obs/sensor_data"]:
+                raise KeyError(
+                    f"{ref.path.name}/{ref.traj}: no frames of camera {self.camera!r} "
+                    f"(recorded: {sorted(group['obs/sensor_data'])})"
+                )
             camera = group[f"obs/sensor_data/{self.camera}"]
             unique, inverse = np.unique(indices, return_inverse=True)
             rgb = _read_rows(camera["rgb"], unique)[inverse]

@@ -96,6 +96,18 @@ def test_a_corrupt_ledger_is_named_in_one_line(tmp_path, caplog, capsys):
     assert status == 2 and "not an experiments ledger" in errors[0]
 
 
+def test_the_plan_reads_the_ledger_while_a_run_holds_the_folder(tmp_path, caplog, capsys):
+    from aed_tasks.locks import folder_lock
+
+    with folder_lock(tmp_path / "experiments"):
+        status, errors, out = aed(
+            ["experiments", "--plan", "--tasks", "PressButton", "--runs", str(tmp_path)],
+            caplog,
+            capsys,
+        )
+    assert status == 0 and not errors and "0 of 34 jobs done, 34 left" in out
+
+
 def test_unknown_or_repeated_tasks_are_refused():
     with pytest.raises(ValueError, match="Nope"):
         ExperimentsConfig(tasks=("Nope",))

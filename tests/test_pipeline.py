@@ -449,3 +449,45 @@ def test_a_rollout_variant_rolls_out_with_suboptimal_demonstrations(pipeline, tm
     assert results["demos"] == {"count": 1, "suboptimal": 1}
     record = variants_record(cfg.runs, experiment, TASK, "naive_dc")
     assert list(record["variants"]) == ["optimal", "sub-optimal"]
+
+
+@pytest.mark.slow
+def test_a_viewpoint_variant_sees_every_novel_episode_through_the_shifted_camera(pipeline):
+    import h5py
+
+    from aed_eval.variants import (
+        EXPERIMENTS,
+        DetectorExperiment,
+        camera_data,
+        experiment_stages,
+        variant_root,
+        variant_stages,
+    )
+    from aed_tasks import trajectory
+
+    cfg, _ = pipeline
+    shifted = EXPERIMENTS["viewpoint"].variants[1]
+    experiment = DetectorExperiment(
+        "viewpoint_check",
+        "viewpoint",
+        tasks=(TASK,),
+        policies=("naive_dc",),
+        detectors=("probe", "lstm_ed"),
+        variants=(EXPERIMENTS["viewpoint"].variants[0], shifted),
+    )
+    for stage in experiment_stages(cfg, experiment) + variant_stages(cfg, experiment, shifted):
+        for fn, job in stage.jobs:
+            fn(job)
+    seen = trajectory.scan_collection(RunLayout(cfg.runs).data(TASK, camera_data("front_shift")))
+    assert sorted(r.role for r in seen.episodes()) == ["agent_failure", "agent_success", "demo"]
+    main_demos = trajectory.scan_collection(RunLayout(cfg.runs).data(TASK, "novel")).episodes()
+    shifted_demo = next(r for r in seen.episodes() if r.role == "demo")
+    assert shifted_demo.seed == main_demos[0].seed  # the same episode, seen from elsewhere
+    layout = RunLayout(variant_root(cfg.runs, "viewpoint_check", shifted))
+    rollouts = trajectory.scan_collection(layout.rollouts(TASK, "naive_dc", "novel")).episodes()
+    assert len(rollouts) == 2
+    with h5py.File(rollouts[0].path, "r") as h5:
+        assert list(h5[f"{rollouts[0].traj}/obs/sensor_data"]) == ["front_shift"]
+    results = json.loads((layout.evaluation(TASK, "naive_dc") / "results.json").read_text())
+    assert results["camera"] == "front_shift" and results["rollouts"]["count"] == 2
+    assert all("labelled" in row for row in results["detectors"].values())
