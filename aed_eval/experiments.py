@@ -48,9 +48,10 @@ class ExperimentsConfig:
     Args:
         profile: the preset of every stage: mini (this CPU, many hours), paper (a GPU's job),
             demo (minutes a task).
-        experiments: main (every task x policy x detector), and any of the variant experiments
+        experiments: main (every task x policy x detector), any of the variant experiments
             of `aed_eval.variants` (rollout_augmentation, probe_components, seeds,
-            demo_quality, viewpoint).
+            demo_quality, viewpoint) and of the records read off the main runs,
+            `aed_eval.figures` (timing_accuracy, embeddings, error_correction).
         tasks: the tasks of every experiment, in order (default: each experiment's own: all
             seven, the paper's order, for main; the paper's task for each variant experiment).
         runs: root of everything written (default: runs/<profile>).
@@ -70,10 +71,11 @@ class ExperimentsConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        from aed_eval.figures import FIGURES
         from aed_eval.variants import EXPERIMENTS
 
         check_profile(self.profile)
-        known = ("main", *EXPERIMENTS)
+        known = ("main", *EXPERIMENTS, *FIGURES)
         unknown = [e for e in self.experiments if e not in known]
         if unknown or not self.experiments:
             raise ValueError(f"experiments={self.experiments}: known {known}")
@@ -89,11 +91,14 @@ class ExperimentsConfig:
 
     def tasks_of(self, experiment: str) -> tuple[str, ...]:
         """The tasks an experiment runs on: `tasks`, else the experiment's own."""
+        from aed_eval.figures import FIGURES
         from aed_eval.variants import EXPERIMENTS
 
         if self.tasks:
             return self.tasks
-        return PAPER_TASK_ORDER if experiment == "main" else EXPERIMENTS[experiment].tasks
+        if experiment == "main":
+            return PAPER_TASK_ORDER
+        return (EXPERIMENTS.get(experiment) or FIGURES[experiment]).tasks
 
     def main_tasks(self) -> tuple[str, ...]:
         """Every task whose main stages run: the variants stand on them too."""
@@ -124,9 +129,10 @@ class Job:
 
 
 def plan_jobs(cfg: ExperimentsConfig) -> list[Job]:
-    """Every task's main stages, then every variant's; all configs built (so validated) before
-    anything runs."""
+    """Every task's main stages, then every variant's, then the records read off the main
+    runs; all configs built (so validated) before anything runs."""
     from aed_eval.demo import DemoConfig, plan_stages
+    from aed_eval.figures import FIGURES, figure_jobs, run_figure
     from aed_eval.variants import EXPERIMENTS, experiment_stages, variant_stages
 
     jobs = []
@@ -140,7 +146,7 @@ def plan_jobs(cfg: ExperimentsConfig) -> list[Job]:
         for stage in plan_stages(protocol):
             jobs += [Job(task, stage.name, fn, config) for fn, config in stage.jobs]
     for name in cfg.experiments:
-        if name == "main":
+        if name not in EXPERIMENTS:
             continue
         experiment = EXPERIMENTS[name]
         for task in cfg.tasks_of(name):
@@ -150,6 +156,10 @@ def plan_jobs(cfg: ExperimentsConfig) -> list[Job]:
                     stages += variant_stages(protocols[task], experiment, variant)
             for stage in stages:
                 jobs += [Job(task, stage.name, fn, config) for fn, config in stage.jobs]
+    for name in (n for n in cfg.experiments if n in FIGURES):
+        for task in cfg.tasks_of(name):
+            figures = figure_jobs(name, task, cfg.profile, cfg.runs, cfg.results)
+            jobs += [Job(task, name, run_figure, job) for job in figures]
     return jobs
 
 
@@ -233,9 +243,7 @@ def variant_records(cfg: ExperimentsConfig) -> list[Path]:
         + ["--runs", str(cfg.runs)]
     )
     written = []
-    for name in cfg.experiments:
-        if name == "main":
-            continue
+    for name in (n for n in cfg.experiments if n in EXPERIMENTS):
         experiment = EXPERIMENTS[name]
         for task in cfg.tasks_of(name):
             for policy in experiment.policies:

@@ -15,13 +15,12 @@ from pathlib import Path
 
 import tyro
 
-from aed_eval.embeddings import EmbeddingsConfig, embeddings_record
-from aed_eval.results import write_result
+from aed_eval.embeddings import EmbeddingsConfig
+from aed_eval.figures import FigureJob, run_figure
 
 
 def main(cfg: EmbeddingsConfig) -> Path:
-    record = {**embeddings_record(cfg), "command": shlex.join(["python", *sys.argv])}
-    written = write_result(cfg.out / f"{record['task']}_{record['policy']}.json", record)
+    written = run_figure(FigureJob("embeddings", cfg, shlex.join(["python", *sys.argv])))
     print(written[1].read_text())
     return written[0]
 

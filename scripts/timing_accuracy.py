@@ -18,8 +18,7 @@ from pathlib import Path
 
 import tyro
 
-from aed_eval.results import write_result
-from aed_eval.results.timing import timing_record
+from aed_eval.figures import FigureJob, TimingConfig, run_figure
 from aed_models.layout import RunLayout
 from aed_models.recipe import Profile, check_profile
 from aed_tasks import PAPER_TASK_ORDER
@@ -45,11 +44,6 @@ class Config:
     def __post_init__(self) -> None:
         check_profile(self.profile)
         self.runs = Path(self.runs) if self.runs is not None else Path("runs") / self.profile
-        self.out = (
-            Path(self.out)
-            if self.out is not None
-            else Path("results") / self.profile / "timing_accuracy"
-        )
 
 
 def main(cfg: Config) -> list[Path]:
@@ -61,9 +55,12 @@ def main(cfg: Config) -> list[Path]:
             if not (folder / "scores.json").is_file():
                 logger.info("%s / %s: not evaluated (%s), skipped", task, policy, folder)
                 continue
-            record = timing_record(folder, cfg.calibration, cfg.alpha)
-            record["command"] = shlex.join(["python", *sys.argv])
-            paths = write_result(cfg.out / f"{task}_{policy}.json", record)
+            case = TimingConfig(
+                task, policy, cfg.calibration, cfg.alpha, cfg.profile, cfg.runs, cfg.out
+            )
+            paths = run_figure(
+                FigureJob("timing_accuracy", case, shlex.join(["python", *sys.argv]))
+            )
             logger.info("%s / %s: %s", task, policy, ", ".join(str(p) for p in paths))
             written += paths
     if not written:

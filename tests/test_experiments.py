@@ -142,3 +142,28 @@ def test_the_variants_plan_their_detectors_beside_the_main_stages_of_their_task(
     assert sorted({t.seed for t in trained}) == [1, 2, 3, 4] and len(trained) == 4 * 10
     with pytest.raises(ValueError, match=r"experiments=\('ablation',\): known"):
         ExperimentsConfig(experiments=("ablation",))
+
+
+def test_the_records_read_off_the_main_runs_come_after_the_stages_they_read(tmp_path):
+    from aed_eval.figures import FigureJob
+    from aed_tasks import PAPER_TASK_ORDER
+
+    cfg = ExperimentsConfig(
+        experiments=("timing_accuracy", "embeddings", "error_correction"),
+        runs=tmp_path / "runs",
+        results=tmp_path / "results",
+    )
+    jobs = plan_jobs(cfg)
+    figures = [(i, j) for i, j in enumerate(jobs) if isinstance(j.config, FigureJob)]
+    cases = [(j.stage, j.task, j.config.config.policy) for _, j in figures]
+    assert cases[-2:] == [
+        ("embeddings", "PickPlace", "scan"),
+        ("error_correction", "PressButton", "dct"),
+    ]
+    timing = [c for c in cases if c[0] == "timing_accuracy"]
+    assert len(timing) == 3 * 7 and cfg.main_tasks() == PAPER_TASK_ORDER  # timing: every case
+    last_evaluation = max(i for i, j in enumerate(jobs) if j.stage == "evaluate")
+    assert min(i for i, _ in figures) > last_evaluation
+    job = figures[-1][1].config
+    assert job.config.out == tmp_path / "results" / "error_correction"
+    assert job.command.startswith("python scripts/error_correction.py --profile mini")
