@@ -27,6 +27,21 @@ CHUNK = (
     "the mini DCT and SCAN predict the next 10 actions at every step and act on their temporal "
     "ensemble (ACT's action chunking); NaiveDC and the paper's policies predict one"
 )
+MINI_ENVS = (
+    "the mini protocol is #20's recipe: up to 23 training + 4 calibration base environments and "
+    "up to 18 novel ones, a smaller catalogue giving all it has"
+)
+# Environments of the mini protocol by task (None: the whole catalogue): base collection, novel
+# collection, base rollouts, novel rollouts.
+MINI_ENV_COUNTS = {
+    "CloseDrawer": (None, None, None, None),
+    "PressButton": (None, None, 18, None),
+    "PickPlace": (27, 18, 18, 18),
+    "MoveGlassCup": (27, 18, 18, 18),
+    "OrganizeTable": (27, 18, 18, 18),
+    "BackToBox": (27, None, 18, None),
+    "FactoryPacking": (27, None, 18, None),
+}
 # Changes made on purpose since the fingerprint was stored: (path, value then, value now, why).
 INTENDED = [
     *(
@@ -40,13 +55,13 @@ INTENDED = [
         for profile in fingerprint.PROFILES
     ),
     *(
-        (
-            ("protocol", f"collect/mini/{task}/base", "num_envs"),
-            4,
-            7,
-            "the mini protocol holds out 3 calibration environments beside its 4 training ones",
+        (("protocol", f"{stage}/mini/{task}/{split}", "num_envs"), 4, now, MINI_ENVS)
+        for task, row in MINI_ENV_COUNTS.items()
+        for (stage, split), now in zip(
+            (("collect", "base"), ("collect", "novel"), ("rollout", "base"), ("rollout", "novel")),
+            row,
+            strict=True,
         )
-        for task in fingerprint.TASKS
     ),
     *(
         (

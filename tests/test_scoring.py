@@ -29,7 +29,8 @@ def test_episode_scorer_takes_the_running_max_of_detectors_without_memory(monkey
     detectors = [
         LoadedDetector(name, tiny(name).eval(), Path(name)) for name in ("svdd_ed", "lstm_ed")
     ]
-    scorer = EpisodeScorer(detectors, policy=None, demos={0: batch["demos"]})
+    demos = type("Demos", (dict,), {"camera": "front"})({0: batch["demos"]})
+    scorer = EpisodeScorer(detectors, policy=None, demos=demos)
     scorer.reader.close()
     scorer.reader = NoReader()
     scores = scorer.score(SimpleNamespace(env_index=0, path=Path("shard.h5"), traj="traj_0"))
