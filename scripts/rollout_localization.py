@@ -5,7 +5,9 @@ Splits the rollouts into those whose located target lies within `--near` of the 
 rest, with the success count of each: a policy that fails where it was told the right place
 fails at control, one that fails only where the localizer missed fails at localization. For a
 failure at control, where its stage-target head aimed when the TCP came closest tells whether
-it aimed wrong (the head) or did not get where it aimed (the actor).
+it aimed wrong (the head) or did not get where it aimed (the actor). Where the gripper first
+closed (the first action with a negative gripper command) against the object tells a grasp
+that missed from one that was never tried.
 
     python scripts/rollout_localization.py --policy runs/PressButton/policies/scan/policy.pt \
         --rollouts runs/PressButton/rollouts/scan/novel --demos runs/PressButton/data/novel
@@ -55,7 +57,7 @@ def main(cfg: Config) -> dict:
     refs = list(trajectory.scan_collection(cfg.rollouts).episodes())
     demos = Demonstrations(cfg.demos, refs[0].split, cfg.num_demos)
     reader = EpisodeReader()
-    located, approach, success, envs, aimed = [], [], [], [], []
+    located, approach, success, envs, aimed, closed_at = [], [], [], [], [], []
     for ref in sorted(refs, key=lambda r: r.env_index):
         sequence = reader.read(ref)
         points = policy.localizer.locate(
@@ -69,6 +71,7 @@ def main(cfg: Config) -> dict:
             kind = "articulations" if cfg.target in states["articulations"] else "actors"
             xy = states[kind][cfg.target][0, :2]
             tcp = group["obs/extra/tcp_pose"][()][:, :2]
+            closes = np.flatnonzero(group["actions"][()][:, -1] < 0)
         located.append(float(np.linalg.norm(point[:2] - xy)))
         distance = np.linalg.norm(tcp - xy, axis=1)
         approach.append(float(distance.min()))
@@ -76,14 +79,23 @@ def main(cfg: Config) -> dict:
         aimed.append(
             float("nan") if predicted is None else float(np.linalg.norm(predicted[closest] - xy))
         )
+        closed_at.append(float(distance[closes[0]]) if len(closes) else float("nan"))
         success.append(bool(ref.success))
         envs.append(ref.env_index)
-    located, approach, success, aimed = map(np.asarray, (located, approach, success, aimed))
+    located, approach, success, aimed, closed_at = map(
+        np.asarray, (located, approach, success, aimed, closed_at)
+    )
     near = located < cfg.near
+    closed = closed_at[np.isfinite(closed_at)]
     result = {
         "rollouts": len(refs),
         "located_median_cm": 100 * float(np.median(located)),
         "closest_approach_median_cm": 100 * float(np.median(approach)),
+        "first_close": {
+            "rollouts": len(closed),
+            "median_cm": 100 * float(np.median(closed)) if len(closed) else None,
+            "within_2cm": int((closed < 0.02).sum()),
+        },
         "found": {"rollouts": int(near.sum()), "successes": int(success[near].sum())},
         "missed": {"rollouts": int((~near).sum()), "successes": int(success[~near].sum())},
         "failures_found_closest_approach_cm": sorted(
@@ -106,9 +118,12 @@ def main(cfg: Config) -> dict:
                 "located_cm": round(100 * x, 2),
                 "closest_cm": round(100 * a, 2),
                 "aimed_at_closest_cm": round(100 * t, 2),
+                "first_close_cm": round(100 * c, 2) if np.isfinite(c) else None,
                 "success": bool(ok),
             }
-            for e, x, a, t, ok in zip(envs, located, approach, aimed, success, strict=True)
+            for e, x, a, t, c, ok in zip(
+                envs, located, approach, aimed, closed_at, success, strict=True
+            )
         ],
     }
     print(json.dumps(result, indent=1))

@@ -21,7 +21,8 @@ FROZEN = (
 )
 LOCALIZER = (
     "the mini policies read where the demonstrations' stage targets are in the rollout's first "
-    "frame (the task's target localizer, aed train-localizer)"
+    "frame (the task's target localizer, aed train-localizer), at the nearest surface's depth "
+    "within 4 pixels of the match"
 )
 CHUNK = (
     "the mini DCT and SCAN predict the next 10 actions at every step and act on their temporal "
@@ -104,7 +105,9 @@ INTENDED = [
         (
             ("recipes", f"model/{name}/{profile}", "localizer"),
             ABSENT,
-            {"width": 32, "dim": 32, "num_targets": 1} if profile == "mini" else None,
+            {"width": 32, "dim": 32, "num_targets": 1, "depth_window": 4}
+            if profile == "mini"
+            else None,
             LOCALIZER,
         )
         for name in ("naive_dc", "dct", "scan")

@@ -19,16 +19,22 @@ class LocalizerConfig:
         dim: size of its unit feature vectors, one per 8 x 8 pixel cell.
         num_targets: stage targets located per episode (the task's stages; set from the
             data when training starts).
+        depth_window: a located pixel's depth is the nearest surface within this many pixels
+            of it (0: the pixel's own): a match a few pixels off an object's silhouette
+            otherwise reads the table behind it.
     """
 
     width: int = 32
     dim: int = 32
     num_targets: int = 1
+    depth_window: int = 4
 
     def __post_init__(self) -> None:
         for name in ("width", "dim", "num_targets"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
+        if self.depth_window < 0:
+            raise ValueError(f"depth_window={self.depth_window}: must be >= 0")
         if self.width % 8:
             raise ValueError(f"width={self.width}: must be a multiple of 8 (GroupNorm of 8)")
 

@@ -66,6 +66,16 @@ def refined_pixels(logits: torch.Tensor) -> torch.Tensor:
     return (torch.stack([u, v], dim=-1) + 0.5) * STRIDE
 
 
+def nearest_surface(depth: torch.Tensor, window: int) -> torch.Tensor:
+    """Depth maps (B, H, W) -> at each pixel the nearest depth within `window` pixels (a
+    (2 window + 1)^2 square); zeros (no depth) are left out, and stay where all are zero."""
+    if window == 0:
+        return depth
+    seen = torch.where(depth > 0, depth, torch.full_like(depth, float("inf")))
+    near = -F.max_pool2d(-seen[:, None], 2 * window + 1, stride=1, padding=window)[:, 0]
+    return torch.where(torch.isfinite(near), near, torch.zeros_like(near))
+
+
 def colour_jitter(
     frames: torch.Tensor, strength: float, generator: torch.Generator
 ) -> torch.Tensor:
@@ -141,5 +151,6 @@ class TargetLocalizer(nn.Module):
         u = pixels[..., 0].long().clamp(0, width - 1)
         v = pixels[..., 1].long().clamp(0, height - 1)
         rows = torch.arange(b, device=frames.device)[:, None]
-        depth_m = frames[rows, 3, v, u] * DEPTH_SCALE_MM / 1000.0
+        depth = nearest_surface(frames[:, 3], self.config.depth_window)
+        depth_m = depth[rows, v, u] * DEPTH_SCALE_MM / 1000.0
         return self.unproject(pixels, depth_m)

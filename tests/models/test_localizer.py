@@ -11,17 +11,19 @@ import pytest
 import torch
 
 from aed_models.data import (
+    DEPTH_SCALE_MM,
     EpisodeReader,
     load_episodes,
     pad_sequences,
     stage_end_points,
     stage_subgoals,
 )
-from aed_models.localizer import LocalizerConfig, load_localizer
+from aed_models.localizer import LocalizerConfig, load_localizer, modeling_localizer
 from aed_models.localizer.modeling_localizer import (
     STRIDE,
     TargetLocalizer,
     colour_jitter,
+    nearest_surface,
     refined_pixels,
 )
 from aed_models.nn import VisualHeadConfig
@@ -137,6 +139,33 @@ def test_geometry_round_trips():
     pixels = refined_pixels(logits)
     assert torch.allclose(pixels[0], torch.tensor([3.5 * STRIDE, 2.5 * STRIDE]))
     assert torch.allclose(pixels[1], torch.tensor([2.0 * STRIDE, 1.5 * STRIDE]))
+
+
+def test_a_match_beside_an_object_reads_the_object_depth():
+    """A pixel two off a box's silhouette reads the table through the pixel itself, the box
+    within a window of 4; pixels without depth (0) are never the nearest."""
+    depth = torch.full((1, 20, 20), 1000.0)
+    depth[0, 8:12, 8:12] = 980.0
+    depth[0, 0, :] = 0.0
+    assert nearest_surface(depth, 0)[0, 10, 14] == 1000.0
+    assert nearest_surface(depth, 4)[0, 10, 14] == 980.0
+    assert nearest_surface(depth, 4)[0, 0, 0] == 1000.0
+    assert nearest_surface(torch.zeros(1, 5, 5), 2).eq(0).all()
+
+
+def test_locate_reads_the_nearest_surface_in_its_window(monkeypatch):
+    """A match two pixels beside a raised square lands on the table without a depth window and
+    on the square's top with one."""
+    frames = torch.zeros(1, 4, H, W)
+    frames[:, 3] = 1000.0 * HEIGHT_M / DEPTH_SCALE_MM
+    u, v = pixel(0.05, 0.05)
+    frames[:, 3, v - 3 : v + 3, u - 3 : u + 3] = 1000.0 * (HEIGHT_M - TOP_M) / DEPTH_SCALE_MM
+    beside = torch.tensor([[[u + 5.0, float(v)]]])  # two pixels right of the square's edge
+    monkeypatch.setattr(modeling_localizer, "refined_pixels", lambda logits: beside)
+    for window, height in ((0, 0.0), (4, TOP_M)):
+        localizer = camera_localizer(dataclasses.replace(TINY, depth_window=window))
+        point = localizer.locate(frames, torch.randn(1, TINY.dim))
+        assert point[0, 0, 2].item() == pytest.approx(height, abs=2e-3)
 
 
 def test_stage_end_points_are_where_each_stage_ended():
@@ -301,6 +330,9 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
     assert len(per_rollout) == 48 and all(r["success"] for r in per_rollout)
     assert all(np.isfinite(r["aimed_at_closest_cm"]) for r in per_rollout)  # it has the head
     assert sum(r["located_cm"] < 3 for r in per_rollout) == found["rollouts"]
+    # the synthetic episodes never command the gripper closed
+    assert diagnosis["first_close"] == {"rollouts": 0, "median_cm": None, "within_2cm": 0}
+    assert all(r["first_close_cm"] is None for r in per_rollout)
     missing = dataclasses.replace(cfg, out=tmp_path / "x", localizer=tmp_path / "missing.pt")
     with pytest.raises(FileNotFoundError, match="aed train-localizer"):
         train_policy(missing, policy_config("naive_dc"))
