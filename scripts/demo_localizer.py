@@ -10,11 +10,13 @@ resampled together).
 
     python scripts/demo_localizer.py --localizer runs/PressButton/localizer/localizer.pt \
         --novel runs/PressButton/data/novel --data runs/PressButton/data/base \
-        [--encoder runs/PressButton/encoder/encoder.pt] [--every 4] [--out result.json]
+        [--encoder runs/PressButton/encoder/encoder.pt] [--every 4] [--depth-window 0] \
+        [--out result.json]
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 from dataclasses import dataclass
@@ -43,6 +45,8 @@ class Config:
     """Also score this scene encoder's stage-target read-out on the same frames."""
     every: int = 1000
     """Locate every n-th frame of each demonstration (the default: its first alone)."""
+    depth_window: int | None = None
+    """Lift the located pixels with this depth window in place of the checkpoint's."""
     seed: int = 0
     """Seeds the bootstrap."""
     out: Path | None = None
@@ -54,6 +58,8 @@ def locate_demonstrations(cfg: Config) -> dict[str, list[np.ndarray]]:
     """Per demonstration, the horizontal errors (m) of its located frames: the localizer's,
     the encoder's (given one) and the training mean's."""
     localizer = load_localizer(cfg.localizer)
+    if cfg.depth_window is not None:
+        localizer.config = dataclasses.replace(localizer.config, depth_window=cfg.depth_window)
     k = localizer.config.num_targets
     encoder = None
     if cfg.encoder:
