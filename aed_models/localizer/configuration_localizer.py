@@ -20,14 +20,15 @@ class LocalizerConfig:
         num_targets: stage targets located per episode (the task's stages; set from the
             data when training starts).
         depth_window: a located pixel's depth is the nearest surface within this many pixels
-            of it (0: the pixel's own): a match a few pixels off an object's silhouette
-            otherwise reads the table behind it.
+            of it: a match a few pixels off an object's silhouette otherwise reads the table
+            behind it. 0 reads the pixel's own, as the localizers saved before this field did
+            (they load with it); the `mini` and `demo` presets use 4.
     """
 
     width: int = 32
     dim: int = 32
     num_targets: int = 1
-    depth_window: int = 4
+    depth_window: int = 0
 
     def __post_init__(self) -> None:
         for name in ("width", "dim", "num_targets"):
@@ -41,7 +42,7 @@ class LocalizerConfig:
     @classmethod
     def preset(cls, profile: str) -> LocalizerConfig:
         check_profile(profile)
-        return cls()
+        return cls(depth_window=4)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
