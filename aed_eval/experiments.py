@@ -8,6 +8,11 @@ jobs that finished: a run skips every job the ledger holds with the same config 
 the first one that did not finish (each stage resumes its own folder). Stop it at any time, run
 the same command again. `--plan` prints what is done and what is left, and runs nothing.
 
+A runs folder does not outlive the machine it was written on, so the unit of progress is the
+(task, policy) case: a task's jobs run case by case, and each finished case is committed as a
+record under `results/<profile>/main/` with the digests of the jobs that made it. A case whose
+record matches is done on any machine; only the jobs of open cases run.
+
 The ablations, the stability runs, the demonstration-quality and viewpoint-shift experiments
 (`--experiments rollout_augmentation probe_components seeds demo_quality viewpoint`,
 `aed_eval.variants`) add variants on top of the main experiment's stages for their tasks (Pick &
@@ -23,7 +28,7 @@ import logging
 import shlex
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
@@ -109,12 +114,20 @@ class ExperimentsConfig:
 
 @dataclass
 class Job:
-    """One stage's config of one task: `fn(config)` does it (and resumes it)."""
+    """One stage's config of one task: `fn(config)` does it (and resumes it).
+
+    `experiment` names what planned it (`main`, a variant experiment or a figure); a main job's
+    `case` is the policy of the (task, policy) case it serves, None when it serves every case
+    of its task (the collections, the scene encoder and localizer, the detectors that read no
+    policy).
+    """
 
     task: str
     stage: str
     fn: Callable[[Any], Any]
     config: Any
+    experiment: str = "main"
+    case: str | None = None
 
     @property
     def digest(self) -> str:
@@ -143,8 +156,7 @@ def plan_jobs(cfg: ExperimentsConfig) -> list[Job]:
         for task in cfg.main_tasks()
     }
     for task, protocol in protocols.items():
-        for stage in plan_stages(protocol):
-            jobs += [Job(task, stage.name, fn, config) for fn, config in stage.jobs]
+        jobs += main_jobs(task, plan_stages(protocol), protocol.policies, RunLayout(cfg.runs))
     for name in cfg.experiments:
         if name not in EXPERIMENTS:
             continue
@@ -155,12 +167,40 @@ def plan_jobs(cfg: ExperimentsConfig) -> list[Job]:
                 if not variant.baseline:
                     stages += variant_stages(protocols[task], experiment, variant)
             for stage in stages:
-                jobs += [Job(task, stage.name, fn, config) for fn, config in stage.jobs]
+                jobs += [Job(task, stage.name, fn, config, name) for fn, config in stage.jobs]
     for name in (n for n in cfg.experiments if n in FIGURES):
         for task in cfg.tasks_of(name):
             figures = figure_jobs(name, task, cfg.profile, cfg.runs, cfg.results)
-            jobs += [Job(task, name, run_figure, job) for job in figures]
+            jobs += [Job(task, name, run_figure, job, name) for job in figures]
     return jobs
+
+
+def case_policy(config: Any, task: str, policies: Sequence[str], layout: RunLayout) -> str | None:
+    """The policy whose case a main job serves: the config's `policy` (a name, or a detector's
+    policy checkpoint in the layout); None for a job that reads no policy."""
+    policy = getattr(config, "policy", None)
+    if policy is None or policy in policies:
+        return policy
+    for name in policies:
+        if Path(policy) in (layout.policy(task, name), layout.policy(task, name).parent):
+            return name
+    raise ValueError(f"{task}: a job reads policy {policy!r}, not one of {list(policies)}")
+
+
+def main_jobs(
+    task: str, stages: Sequence[Any], policies: Sequence[str], layout: RunLayout
+) -> list[Job]:
+    """One task's main stages, case by case: first the jobs every case shares, then each
+    policy's own (its training, its detectors, rollouts, calibrations and evaluation), so that
+    a run stopped part-way has finished whole (task, policy) cases."""
+    jobs = [
+        Job(task, stage.name, fn, config, case=case_policy(config, task, policies, layout))
+        for stage in stages
+        for fn, config in stage.jobs
+    ]
+    return [j for j in jobs if j.case is None] + [
+        j for policy in policies for j in jobs if j.case == policy
+    ]
 
 
 class Ledger:
@@ -191,45 +231,127 @@ class Ledger:
         trajectory.write_json_atomic(self.path, {"jobs": self.jobs})
 
 
-def status_lines(jobs: Sequence[Job], ledger: Ledger) -> list[str]:
-    """Per task and stage: jobs done of planned; then the totals."""
+def case_jobs(jobs: Sequence[Job]) -> dict[tuple[str, str], list[Job]]:
+    """Every main (task, policy) case and the jobs it needs: the task's shared ones and its
+    own."""
+    main = [j for j in jobs if j.experiment == "main"]
+    keys = dict.fromkeys((j.task, j.case) for j in main if j.case is not None)
+    return {
+        (task, policy): [j for j in main if j.task == task and j.case in (None, policy)]
+        for task, policy in keys
+    }
+
+
+def case_digest(jobs: Sequence[Job]) -> str:
+    """What a case is: the digests of every job it needs."""
+    text = "\n".join(sorted(j.digest for j in jobs))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def case_record_path(results: Path, task: str, policy: str) -> Path:
+    """Where a main case's record is committed: `<results>/main/<task>_<policy>.json`."""
+    return Path(results) / "main" / f"{task}_{policy}.json"
+
+
+def committed_cases(jobs: Sequence[Job], results: Path) -> set[tuple[str, str]]:
+    """The cases whose record under `results` was made by the same jobs (same digest): their
+    numbers are in the repository, so their jobs need not run again, here or on another
+    machine whose runs folder is empty."""
+    from aed_eval.results import load_record
+
+    committed = set()
+    for case, needed in case_jobs(jobs).items():
+        path = case_record_path(results, *case)
+        if path.exists() and load_record(path).get("case_digest") == case_digest(needed):
+            committed.add(case)
+    return committed
+
+
+def pending_jobs(jobs: Sequence[Job], committed: Collection[tuple[str, str]]) -> list[Job]:
+    """The jobs still needed: all but the main jobs that serve committed cases only. A task that
+    a variant or figure reads keeps every main job (they read the main run's files)."""
+    readers = {j.task for j in jobs if j.experiment != "main"}
+    cases = case_jobs(jobs)
+    closed = {t for t, _ in cases} - {t for t, p in cases if (t, p) not in committed}
+
+    def needed(job: Job) -> bool:
+        if job.experiment != "main" or job.task in readers:
+            return True
+        if job.case is not None:
+            return (job.task, job.case) not in committed
+        return job.task not in closed  # a shared job: needed while any case of its task is open
+
+    return [j for j in jobs if needed(j)]
+
+
+def status_lines(
+    jobs: Sequence[Job], ledger: Ledger, committed: Collection[tuple[str, str]] = ()
+) -> list[str]:
+    """Per task and stage: jobs done (or not needed: their cases are committed) of planned;
+    then the totals and the committed cases."""
+    pending = {id(j) for j in pending_jobs(jobs, set(committed))}
     planned, done = Counter(), Counter()
     for job in jobs:
         planned[job.task, job.stage] += 1
-        done[job.task, job.stage] += ledger.done(job)
+        done[job.task, job.stage] += ledger.done(job) or id(job) not in pending
     lines = [
         f"{task:<15} {stage:<24} {done[task, stage]}/{n} done"
         for (task, stage), n in planned.items()
     ]
     finished = sum(done.values())
     lines.append(f"{finished} of {len(jobs)} jobs done, {len(jobs) - finished} left")
+    cases = case_jobs(jobs)
+    if cases:
+        names = [f"{t} / {p}" for t, p in cases if (t, p) in committed]
+        lines.append(
+            f"{len(names)} of {len(cases)} main cases committed"
+            + (f": {', '.join(names)}" if names else "")
+        )
     return lines
 
 
-def run_jobs(jobs: Sequence[Job], ledger: Ledger) -> int:
+def run_jobs(jobs: Sequence[Job], ledger: Ledger, after: Callable[[Job], Any] | None = None) -> int:
     """Run every job the ledger does not hold, in order, recording each as it finishes; an
-    error stops the run (what finished stays recorded). Returns the number of jobs run."""
+    error stops the run (what finished stays recorded). `after(job)` follows every job done,
+    now or before. Returns the number of jobs run."""
     ran = 0
     for i, job in enumerate(jobs):
-        if ledger.done(job):
-            continue
-        logger.info("experiments: [%d/%d] %s: %s", i + 1, len(jobs), job.task, job.stage)
-        start = time.perf_counter()
-        job.fn(job.config)
-        ledger.record(job, time.perf_counter() - start)
-        ran += 1
+        if not ledger.done(job):
+            logger.info("experiments: [%d/%d] %s: %s", i + 1, len(jobs), job.task, job.stage)
+            start = time.perf_counter()
+            job.fn(job.config)
+            ledger.record(job, time.perf_counter() - start)
+            ran += 1
+        if after is not None:
+            after(job)
     return ran
 
 
-def evaluations(jobs: Sequence[Job]) -> list[Path]:
-    """The results.json of every evaluation job."""
-    from aed_eval.evaluate import EvaluateConfig
-
-    return [
-        Path(job.config.out) / "results.json"
-        for job in jobs
-        if isinstance(job.config, EvaluateConfig) and job.stage == "evaluate"  # main's only
-    ]
+def case_record(
+    cfg: ExperimentsConfig, task: str, policy: str, needed: Sequence[Job], ledger: Ledger
+) -> dict[str, Any]:
+    """A finished case's record: its evaluation (`aed evaluate`'s results.json), the jobs that
+    made it with their wall times, and the command that resumes the grid."""
+    evaluation = next(j for j in needed if j.case == policy and j.stage == "evaluate")
+    path = Path(evaluation.config.out) / "results.json"
+    try:
+        results = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: unreadable evaluation ({e}); re-run aed evaluate") from e
+    command = ["aed", "experiments", "--profile", cfg.profile, "--tasks", task]
+    return {
+        "kind": "main_case",
+        "task": task,
+        "policy": policy,
+        "profile": cfg.profile,
+        "command": shlex.join(command),
+        "case_digest": case_digest(needed),
+        "jobs": [
+            {"stage": j.stage, "digest": j.digest, "seconds": ledger.jobs[j.digest]["seconds"]}
+            for j in needed
+        ],
+        "results": results,
+    }
 
 
 def variant_records(cfg: ExperimentsConfig) -> list[Path]:
@@ -254,26 +376,37 @@ def variant_records(cfg: ExperimentsConfig) -> list[Path]:
 
 
 def experiments(cfg: Annotated[ExperimentsConfig, tyro.conf.arg(name="")]) -> int:
-    """The paper's experiments (resumable): plan, run what is left, report."""
-    from aed_eval.report import ReportConfig, make_report
+    """The paper's experiments (resumable): plan, run what is left, commit each finished main
+    case under `results/<profile>/main/`, report."""
+    from aed_eval.results import write_result
+    from aed_eval.results.main import write_main_report
 
     jobs = plan_jobs(cfg)
+    committed = committed_cases(jobs, cfg.results)
     if cfg.plan:  # the ledger is replaced atomically: readable while a run writes it
-        print("\n".join(status_lines(jobs, Ledger(cfg.runs / LEDGER))))
+        print("\n".join(status_lines(jobs, Ledger(cfg.runs / LEDGER), committed)))
         return 0
     cfg.runs.mkdir(parents=True, exist_ok=True)
+    cases = case_jobs(jobs)
+
+    def commit(job: Job) -> None:
+        case = (job.task, job.case)
+        if job.experiment == "main" and job.stage == "evaluate" and case not in committed:
+            record = case_record(cfg, job.task, job.case, cases[case], ledger)
+            write_result(case_record_path(cfg.results, *case), record)
+            committed.add(case)
+
     with folder_lock(cfg.runs / "experiments"):
         ledger = Ledger(cfg.runs / LEDGER)
         start = time.perf_counter()
-        ran = run_jobs(jobs, ledger)
-        path = make_report(
-            ReportConfig(results=tuple(evaluations(jobs)), out=RunLayout(cfg.runs).report())
-        )
+        ran = run_jobs(pending_jobs(jobs, committed), ledger, after=commit)
+        report = write_main_report(cfg.results / "main")
         records = variant_records(cfg)
-    print(path.read_text())
-    print("\n".join(status_lines(jobs, ledger)))
+    if report is not None:
+        print(report.read_text())
+    print("\n".join(status_lines(jobs, ledger, committed)))
     for record in records:
         if record.suffix == ".md":
             print(record.read_text())
-    print(f"ran {ran} jobs in {(time.perf_counter() - start) / 60:.1f} min; report: {path}")
+    print(f"ran {ran} jobs in {(time.perf_counter() - start) / 60:.1f} min; report: {report}")
     return 0

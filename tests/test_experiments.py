@@ -4,6 +4,8 @@ number of stops and restarts end with each job done once."""
 from __future__ import annotations
 
 import dataclasses
+import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,12 +16,16 @@ from aed_eval.experiments import (
     ExperimentsConfig,
     Job,
     Ledger,
+    case_jobs,
     plan_jobs,
     run_jobs,
     status_lines,
 )
+from aed_eval.results import load_record
 from aed_tasks import PAPER_TASK_ORDER
 from tests.helpers import aed
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_the_main_experiment_plans_every_task_in_the_protocols_order(tmp_path):
@@ -32,10 +38,10 @@ def test_the_main_experiment_plans_every_task_in_the_protocols_order(tmp_path):
     assert all(
         str(j.config.out).startswith(str(tmp_path)) for j in jobs if hasattr(j.config, "out")
     )
-    assert (
-        status_lines(jobs, Ledger(tmp_path / LEDGER))[-1]
-        == f"0 of {len(jobs)} jobs done, {len(jobs)} left"
-    )
+    assert status_lines(jobs, Ledger(tmp_path / LEDGER))[-2:] == [
+        f"0 of {len(jobs)} jobs done, {len(jobs)} left",
+        "0 of 21 main cases committed",
+    ]
 
 
 @dataclass
@@ -167,3 +173,100 @@ def test_the_records_read_off_the_main_runs_come_after_the_stages_they_read(tmp_
     job = figures[-1][1].config
     assert job.config.out == tmp_path / "results" / "error_correction"
     assert job.command.startswith("python scripts/error_correction.py --profile mini")
+
+
+def test_the_main_stages_run_case_by_case_after_what_the_cases_share(tmp_path):
+    jobs = plan_jobs(ExperimentsConfig(profile="mini", tasks=("PressButton",), runs=tmp_path))
+    cases = [j.case for j in jobs]
+    shared = cases.count(None)
+    assert set(cases[:shared]) == {None}  # collections, encoder, localizer, 4 detectors
+    assert [j.stage for j in jobs[:shared]].count("train detectors") == 4
+    owned = cases[shared:]
+    assert owned == sorted(owned, key=["naive_dc", "dct", "scan"].index)  # one case at a time
+    for policy in ("naive_dc", "dct", "scan"):
+        stages = [j.stage for j in jobs if j.case == policy]
+        assert stages[0] == "train policies" and stages[-1] == "evaluate"
+        assert stages.count("train detectors") == 2  # probe and rnd_oe on its features
+    assert list(case_jobs(jobs)) == [("PressButton", p) for p in ("naive_dc", "dct", "scan")]
+
+
+@dataclass
+class Evaluation:
+    """A stand-in evaluation job: it writes `results.json` (a real one, relabelled) to `out`."""
+
+    name: str
+    out: Path
+    policy: str
+    value: int = 0
+
+
+def grid(fn: Recorder, runs: Path, **changed: int) -> list[Job]:
+    """Two cases of one task: a shared collection, then each policy's training and evaluation."""
+
+    def job(name: str, case: str | None, config: object) -> Job:
+        return Job("PressButton", name.split()[0], fn, config, case=case)
+
+    jobs = [job("collect", None, Step("collect", changed.get("collect", 0)))]
+    for policy in ("dct", "scan"):
+        jobs += [
+            job("train", policy, Step(f"train {policy}", changed.get(policy, 0))),
+            job("evaluate", policy, Evaluation(f"evaluate {policy}", runs / policy, policy)),
+        ]
+    return jobs
+
+
+class Evaluator(Recorder):
+    def __call__(self, step: Step | Evaluation) -> None:
+        super().__call__(step)
+        if isinstance(step, Evaluation):
+            body = json.loads((REPO / "results/protocol/PressButton_scan/results.json").read_text())
+            step.out.mkdir(parents=True)
+            (step.out / "results.json").write_text(json.dumps({**body, "policy": step.policy}))
+
+
+def test_a_finished_case_is_committed_and_never_recomputed_on_an_empty_machine(
+    tmp_path, monkeypatch, capsys
+):
+    """Runs folders do not outlive a machine here: a finished case's record under results/ is
+    what says it is done, and a fresh runs folder runs only the cases still open."""
+    import aed_eval.experiments as experiments_module
+    from aed_eval.experiments import experiments
+    from aed_eval.results import stale_markdown
+
+    results, fn = tmp_path / "results", Evaluator(fail_on="evaluate scan")
+
+    def run(**changed: int) -> None:
+        monkeypatch.setattr(
+            experiments_module, "plan_jobs", lambda cfg: grid(fn, cfg.runs, **changed)
+        )
+        experiments(ExperimentsConfig(runs=tmp_path / "runs", results=results))
+
+    def new_machine() -> None:  # the same commands, nothing left of the runs folder
+        shutil.rmtree(tmp_path / "runs")
+        fn.ran.clear()
+
+    with pytest.raises(RuntimeError, match="evaluate scan: killed"):
+        run()
+    record = load_record(results / "main" / "PressButton_dct.json")
+    assert record["kind"] == "main_case" and record["results"]["policy"] == "dct"
+    assert [j["stage"] for j in record["jobs"]] == ["collect", "train", "evaluate"]
+    assert not (results / "main" / "PressButton_scan.json").exists()
+
+    new_machine()
+    run()
+    assert fn.ran == ["collect", "train scan", "evaluate scan"]
+    report = (results / "main" / "report.md").read_text()
+    assert "PressButton / dct" in report and "PressButton / scan" in report
+    assert "2 of 2 main cases committed" in capsys.readouterr().out
+    assert stale_markdown(results) == []
+
+    new_machine()
+    run()
+    assert fn.ran == []
+    run(scan=1)  # scan's training changed: its case is open again, dct's is not
+    assert fn.ran == ["collect", "train scan", "evaluate scan"]
+
+    (results / "main" / "report.md").write_text("edited by hand\n")
+    assert stale_markdown(results) == [
+        f"{results / 'main' / 'report.md'}: missing or not what the cases beside it render to"
+    ]

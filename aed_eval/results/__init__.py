@@ -48,6 +48,7 @@ def renderers() -> dict[str, Renderer]:
         correction,
         detector_variants,
         embeddings,
+        main,
         tables,
         timing,
     )
@@ -115,7 +116,20 @@ def stale_markdown(root: Path) -> list[str]:
                     problems.append(f"{committed}: missing (render {path})")
                 elif committed.read_text() != written.read_text():
                     problems.append(f"{committed}: differs from what {path} renders to")
+        for folder in main_folders(root):
+            from aed_eval.results.main import REPORT, write_main_report
+
+            written = write_main_report(folder, Path(scratch) / folder.relative_to(root) / REPORT)
+            committed = folder / REPORT
+            if not committed.exists() or committed.read_text() != written.read_text():
+                problems.append(f"{committed}: missing or not what the cases beside it render to")
     return problems
+
+
+def main_folders(root: Path) -> list[Path]:
+    """The folders under `root` that hold main experiment cases (`aed_eval.results.main`)."""
+    folders = {p.parent for p in records_under(root) if load_record(p)["kind"] == "main_case"}
+    return sorted(folders)
 
 
 @dataclass
@@ -144,10 +158,14 @@ def results(cfg: Annotated[ResultsConfig, tyro.conf.arg(name="")]) -> int:
         count = sum(len(records_under(root)) for root in cfg.roots)
         print("\n".join(problems) if problems else f"{count} records: every table as rendered")
         return 1 if problems else 0
+    from aed_eval.results.main import write_main_report
+
     for root in cfg.roots:
         for path in records_under(root):
             written = render_record(load_record(path), path.with_suffix(""))
             print(f"{path}: {', '.join(p.name for p in written)}")
+        for folder in main_folders(root):
+            print(f"{write_main_report(folder)}: the report over the cases beside it")
     return 0
 
 
