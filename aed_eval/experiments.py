@@ -59,6 +59,8 @@ class ExperimentsConfig:
             `aed_eval.figures` (timing_accuracy, embeddings, error_correction).
         tasks: the tasks of every experiment, in order (default: each experiment's own: all
             seven, the paper's order, for main; the paper's task for each variant experiment).
+        policies: the main experiment's policies, in order (default: the profile's); a case's
+            jobs are the same whichever others are planned beside it.
         runs: root of everything written (default: runs/<profile>).
         results: where the variants' records go (default: results/<profile>).
         plan: print what is done and what is left; run nothing.
@@ -69,6 +71,7 @@ class ExperimentsConfig:
     profile: Profile = "mini"
     experiments: tuple[str, ...] = ("main",)
     tasks: tuple[str, ...] = ()
+    policies: tuple[str, ...] = ()
     runs: Path | None = None
     results: Path | None = None
     plan: bool = False
@@ -87,6 +90,11 @@ class ExperimentsConfig:
         self.tasks = tuple(task_class(t).task_name for t in self.tasks)
         if len(set(self.tasks)) != len(self.tasks):
             raise ValueError(f"tasks={self.tasks}: a task is named twice")
+        from aed_models.policies import POLICIES
+
+        unknown = [p for p in self.policies if p not in POLICIES]
+        if unknown or len(set(self.policies)) != len(self.policies):
+            raise ValueError(f"policies={self.policies}: each once, of {list(POLICIES)}")
         if self.workers < 1:
             raise ValueError(f"workers={self.workers}: must be >= 1")
         self.runs = Path(self.runs) if self.runs is not None else Path("runs") / self.profile
@@ -149,9 +157,10 @@ def plan_jobs(cfg: ExperimentsConfig) -> list[Job]:
     from aed_eval.variants import EXPERIMENTS, experiment_stages, variant_stages
 
     jobs = []
+    policies = {"policies": cfg.policies} if cfg.policies else {}
     protocols = {
         task: DemoConfig.from_preset(
-            task, cfg.profile, runs=cfg.runs, workers=cfg.workers, seed=cfg.seed
+            task, cfg.profile, runs=cfg.runs, workers=cfg.workers, seed=cfg.seed, **policies
         )
         for task in cfg.main_tasks()
     }
@@ -338,7 +347,16 @@ def case_record(
         results = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise ValueError(f"{path}: unreadable evaluation ({e}); re-run aed evaluate") from e
-    command = ["aed", "experiments", "--profile", cfg.profile, "--tasks", task]
+    command = [
+        "aed",
+        "experiments",
+        "--profile",
+        cfg.profile,
+        "--tasks",
+        task,
+        "--policies",
+        policy,
+    ]
     return {
         "kind": "main_case",
         "task": task,

@@ -16,6 +16,7 @@ from aed_eval.experiments import (
     ExperimentsConfig,
     Job,
     Ledger,
+    case_digest,
     case_jobs,
     plan_jobs,
     run_jobs,
@@ -188,6 +189,13 @@ def test_the_main_stages_run_case_by_case_after_what_the_cases_share(tmp_path):
         assert stages[0] == "train policies" and stages[-1] == "evaluate"
         assert stages.count("train detectors") == 2  # probe and rnd_oe on its features
     assert list(case_jobs(jobs)) == [("PressButton", p) for p in ("naive_dc", "dct", "scan")]
+    alone = plan_jobs(
+        ExperimentsConfig(tasks=("PressButton",), policies=("scan",), runs=tmp_path)
+    )  # one case planned alone is the same case
+    assert list(case_jobs(alone)) == [("PressButton", "scan")]
+    assert case_digest(case_jobs(alone)["PressButton", "scan"]) == case_digest(
+        case_jobs(jobs)["PressButton", "scan"]
+    )
 
 
 @dataclass
