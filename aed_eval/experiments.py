@@ -413,6 +413,7 @@ def experiments(cfg: Annotated[ExperimentsConfig, tyro.conf.arg(name="")]) -> in
             record = case_record(cfg, job.task, job.case, cases[case], ledger)
             write_result(case_record_path(cfg.results, *case), record)
             committed.add(case)
+            write_main_report(cfg.results / "main")  # the records and their report agree
 
     with folder_lock(cfg.runs / "experiments"):
         ledger = Ledger(cfg.runs / LEDGER)

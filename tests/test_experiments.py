@@ -259,6 +259,7 @@ def test_a_finished_case_is_committed_and_never_recomputed_on_an_empty_machine(
     assert record["kind"] == "main_case" and record["results"]["policy"] == "dct"
     assert [j["stage"] for j in record["jobs"]] == ["collect", "train", "evaluate"]
     assert not (results / "main" / "PressButton_scan.json").exists()
+    assert "PressButton / dct" in (results / "main" / "report.md").read_text()
 
     new_machine()
     run()
