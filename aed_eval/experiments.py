@@ -298,7 +298,7 @@ def status_lines(
 ) -> list[str]:
     """Per task and stage: jobs done (or not needed: their cases are committed) of planned;
     then the totals and the committed cases."""
-    pending = {id(j) for j in pending_jobs(jobs, set(committed))}
+    pending = {id(j) for j in pending_jobs(jobs, committed)}
     planned, done = Counter(), Counter()
     for job in jobs:
         planned[job.task, job.stage] += 1

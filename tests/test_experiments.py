@@ -205,7 +205,6 @@ class Evaluation:
     name: str
     out: Path
     policy: str
-    value: int = 0
 
 
 def grid(fn: Recorder, runs: Path, **changed: int) -> list[Job]:
@@ -214,7 +213,7 @@ def grid(fn: Recorder, runs: Path, **changed: int) -> list[Job]:
     def job(name: str, case: str | None, config: object) -> Job:
         return Job("PressButton", name.split()[0], fn, config, case=case)
 
-    jobs = [job("collect", None, Step("collect", changed.get("collect", 0)))]
+    jobs = [job("collect", None, Step("collect"))]
     for policy in ("dct", "scan"):
         jobs += [
             job("train", policy, Step(f"train {policy}", changed.get(policy, 0))),

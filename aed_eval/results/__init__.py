@@ -104,6 +104,8 @@ def records_under(root: Path) -> list[Path]:
 def stale_markdown(root: Path) -> list[str]:
     """Render every record under `root` into a scratch folder; one line for each Markdown file
     that differs from (or is missing beside) its record."""
+    from aed_eval.results.main import REPORT, write_main_report
+
     problems = []
     with tempfile.TemporaryDirectory() as scratch:
         for path in records_under(root):
@@ -117,8 +119,6 @@ def stale_markdown(root: Path) -> list[str]:
                 elif committed.read_text() != written.read_text():
                     problems.append(f"{committed}: differs from what {path} renders to")
         for folder in main_folders(root):
-            from aed_eval.results.main import REPORT, write_main_report
-
             written = write_main_report(folder, Path(scratch) / folder.relative_to(root) / REPORT)
             committed = folder / REPORT
             if not committed.exists() or committed.read_text() != written.read_text():

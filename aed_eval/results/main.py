@@ -46,7 +46,6 @@ def case_records(folder: Path) -> list[tuple[Path, dict[str, Any]]]:
     from aed_tasks import PAPER_TASK_ORDER
 
     policies = list(POLICIES)
-
     found = [(p, load_record(p)) for p in records_under(folder) if p.parent == Path(folder)]
     cases = [(p, r) for p, r in found if r["kind"] == "main_case"]
     return sorted(
