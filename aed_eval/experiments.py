@@ -6,7 +6,9 @@ chosen profile's counts, then one report over every task. It takes many hours on
 it is a list of jobs (one stage's config each) and a ledger, `<runs>/experiments.json`, of the
 jobs that finished: a run skips every job the ledger holds with the same config and resumes
 the first one that did not finish (each stage resumes its own folder). Stop it at any time, run
-the same command again. `--plan` prints what is done and what is left, and runs nothing.
+the same command again. `--plan` prints what is done and what is left, and runs nothing;
+`--policies-only` runs what the policies' novel success rates need and leaves the detectors'
+jobs (and so the cases) for a later run.
 
 A runs folder does not outlive the machine it was written on, so the unit of progress is the
 (task, policy) case: a task's jobs run case by case, and each finished case is committed as a
@@ -45,6 +47,16 @@ logger = logging.getLogger(__name__)
 
 LEDGER = "experiments.json"
 
+POLICY_STAGES = (
+    "collect base split",
+    "train scene encoder",
+    "train target localizer",
+    "train policies",
+    "collect novel split",
+    "roll out policies",
+)
+"""The main stages a policy's novel success rate stands on (`--policies-only`)."""
+
 
 @dataclass
 class ExperimentsConfig:
@@ -64,6 +76,9 @@ class ExperimentsConfig:
         runs: root of everything written (default: runs/<profile>).
         results: where the variants' records go (default: results/<profile>).
         plan: print what is done and what is left; run nothing.
+        policies_only: run only what the policies' novel success rates need (the collections,
+            the scene encoder and localizer, the policies, their novel rollouts), to see a
+            task's policies hours before its detectors; its cases stay open for a full run.
         workers: simulation processes for collection and rollouts.
         seed: root seed of every stage.
     """
@@ -75,6 +90,7 @@ class ExperimentsConfig:
     runs: Path | None = None
     results: Path | None = None
     plan: bool = False
+    policies_only: bool = False
     workers: int = 2
     seed: int = 0
 
@@ -97,6 +113,8 @@ class ExperimentsConfig:
             raise ValueError(f"policies={self.policies}: each once, of {list(POLICIES)}")
         if self.workers < 1:
             raise ValueError(f"workers={self.workers}: must be >= 1")
+        if self.policies_only and self.experiments != ("main",):
+            raise ValueError(f"policies_only: the main experiment's, not {self.experiments}")
         self.runs = Path(self.runs) if self.runs is not None else Path("runs") / self.profile
         self.results = (
             Path(self.results) if self.results is not None else Path("results") / self.profile
@@ -293,6 +311,17 @@ def pending_jobs(jobs: Sequence[Job], committed: Collection[tuple[str, str]]) ->
     return [j for j in jobs if needed(j)]
 
 
+def policy_jobs(jobs: Sequence[Job]) -> list[Job]:
+    """The main jobs a policy's novel success rate needs: its training data, its visual heads,
+    itself and its novel rollouts (not the base ones, which calibrate the detectors)."""
+    return [
+        j
+        for j in jobs
+        if j.stage in POLICY_STAGES
+        and not (j.stage == "roll out policies" and j.config.split != "novel")
+    ]
+
+
 def status_lines(
     jobs: Sequence[Job], ledger: Ledger, committed: Collection[tuple[str, str]] = ()
 ) -> list[str]:
@@ -418,7 +447,8 @@ def experiments(cfg: Annotated[ExperimentsConfig, tyro.conf.arg(name="")]) -> in
     with folder_lock(cfg.runs / "experiments"):
         ledger = Ledger(cfg.runs / LEDGER)
         start = time.perf_counter()
-        ran = run_jobs(pending_jobs(jobs, committed), ledger, after=commit)
+        todo = pending_jobs(jobs, committed)
+        ran = run_jobs(policy_jobs(todo) if cfg.policies_only else todo, ledger, after=commit)
         report = write_main_report(cfg.results / "main")
         records = variant_records(cfg)
     if report is not None:

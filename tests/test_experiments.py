@@ -19,6 +19,7 @@ from aed_eval.experiments import (
     case_digest,
     case_jobs,
     plan_jobs,
+    policy_jobs,
     run_jobs,
     status_lines,
 )
@@ -229,6 +230,24 @@ class Evaluator(Recorder):
             body = json.loads((REPO / "results/protocol/PressButton_scan/results.json").read_text())
             step.out.mkdir(parents=True)
             (step.out / "results.json").write_text(json.dumps({**body, "policy": step.policy}))
+
+
+def test_policies_only_plans_the_policies_and_their_novel_rollouts_and_no_detector(tmp_path):
+    from aed_eval.experiments import POLICY_STAGES
+
+    jobs = plan_jobs(ExperimentsConfig(profile="mini", tasks=("PressButton",), runs=tmp_path))
+    assert set(POLICY_STAGES) <= {j.stage for j in jobs}  # every name is a planned stage
+    chosen = policy_jobs(jobs)
+    stages = [j.stage for j in chosen]
+    assert set(stages) == set(POLICY_STAGES)  # no detector, calibration or evaluation
+    rollouts = [j.config for j in chosen if j.stage == "roll out policies"]
+    assert [(r.policy, r.split) for r in rollouts] == [
+        (p, "novel") for p in ("naive_dc", "dct", "scan")
+    ]
+    assert stages.count("train policies") == 3
+    assert [j for j in jobs if j in chosen] == chosen  # the plan's order, a subset of it
+    with pytest.raises(ValueError, match="policies_only"):
+        ExperimentsConfig(experiments=("seeds",), policies_only=True)
 
 
 def test_a_finished_case_is_committed_and_never_recomputed_on_an_empty_machine(
