@@ -121,42 +121,51 @@ def stage_end_points(subgoal: torch.Tensor, num_stages: int) -> torch.Tensor:
 
 
 CLUTTER = re.compile(r"distractor_\d+$")  # the tasks' unrelated clutter (not task objects)
+PARTICLES = re.compile(r"(water)_\d+$")  # as many as the scene holds: one object, their centroid
 ROBOTS = ("panda",)
 
 
-def task_objects(group: Any) -> Iterator[tuple[str, str, int]]:
-    """(kind, name, joints) of every task object in a stored episode's env states: every actor
-    and articulation but the robot and the clutter, sorted by name (joints: 0 for an actor)."""
+def task_objects(group: Any) -> Iterator[tuple[str, str, tuple[str, ...], int]]:
+    """(kind, name, bodies, joints) of every task object in a stored episode's env states: every
+    actor and articulation but the robot and the clutter, sorted by name (joints: 0 for an
+    actor). A scene's particles (`PARTICLES`: Move Glass Cup's water drops, whose number varies
+    with the glass) are one object of many bodies, so every scene of a task has the same state."""
     states = group["env_states"]
     for kind in ("actors", "articulations"):
-        for name in sorted(states.get(kind, {})):
+        objects: dict[str, list[str]] = defaultdict(list)
+        for name in states.get(kind, {}):
             if name in ROBOTS or CLUTTER.match(name):
                 continue
-            joints = (states[kind][name].shape[1] - 13) // 2 if kind == "articulations" else 0
-            yield kind, name, joints
+            particle = PARTICLES.match(name)
+            objects[particle.group(1) if particle else name].append(name)
+        for name in sorted(objects):
+            bodies = tuple(sorted(objects[name]))
+            joints = (states[kind][bodies[0]].shape[1] - 13) // 2 if kind == "articulations" else 0
+            yield kind, name, bodies, joints
 
 
 def scene_state(group: Any, stage_target: bool = True) -> np.ndarray:
     """(T + 1, D) float32: where things are at every frame of one stored episode.
 
     The TCP position, the stage target (`stage_subgoals`; NaN with `stage_target=False`, for an
-    episode that does not do the task), then each task object's root position and joint
-    positions (`task_objects`). The encoder learns these from the frame (`aed_models.encoder`);
-    the policies act from RGB-D alone.
+    episode that does not do the task), then each task object's root position (the centroid of
+    its bodies) and joint positions (`task_objects`). The encoder learns these from the frame
+    (`aed_models.encoder`); the policies act from RGB-D alone.
     """
     tcp = group["obs/extra/tcp_pose"][()][:, :3].astype(np.float32)
     target = stage_subgoals(tcp, group["stage"][()])
     parts = [tcp, target if stage_target else np.full_like(target, np.nan)]
-    for kind, name, joints in task_objects(group):
-        state = group["env_states"][kind][name][()].astype(np.float32)
+    for kind, _, bodies, joints in task_objects(group):
+        states = [group["env_states"][kind][body][()] for body in bodies]
+        state = np.mean(states, axis=0, dtype=np.float64).astype(np.float32)
         parts += [state[:, :3], state[:, 13 : 13 + joints]]
     return np.concatenate(parts, axis=1)
 
 
 def scene_state_names(group: Any) -> list[str]:
-    """Names of `scene_state`'s columns (e.g. `button.x`, `button.q0`)."""
+    """Names of `scene_state`'s columns (e.g. `button.x`, `button.q0`, `water.z`)."""
     names = [f"tcp.{a}" for a in "xyz"] + [f"subgoal.{a}" for a in "xyz"]
-    for _, name, joints in task_objects(group):
+    for _, name, _, joints in task_objects(group):
         names += [f"{name}.{a}" for a in "xyz"] + [f"{name}.q{i}" for i in range(joints)]
     return names
 

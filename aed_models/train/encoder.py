@@ -64,6 +64,14 @@ class SceneFrames:
         self.episodes = list(episodes)
         self.reader = EpisodeReader(camera)
         self.states = [read_scene_state(ref) for ref in self.episodes]
+        for ref, state in zip(self.episodes, self.states, strict=True):
+            if state.shape[1] != self.states[0].shape[1]:
+                first = self.episodes[0]
+                raise ValueError(
+                    f"{ref.path} {ref.traj}: a scene state of {state.shape[1]} columns, "
+                    f"{self.states[0].shape[1]} in {first.path} {first.traj}: the episodes of "
+                    "one encoder must hold the same task objects"
+                )
 
     def draw(self, i: int, indices: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         """(frames (n, 4, H, W), states (n, D)) of episode `i` at frame `indices`."""

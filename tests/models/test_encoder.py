@@ -92,6 +92,49 @@ def test_scene_state_is_the_task_objects_without_robot_and_clutter(collection):
     assert state.shape == (ref.num_frames, 9) and np.array_equal(state[:, 6:], actor[:, :3])
 
 
+def particle_episode(h5: h5py.File, drops: int) -> h5py.Group:
+    """An episode of 3 frames whose scene holds a glass and `drops` water drops at heights
+    0.01 * (1, 2, ...), beside the robot and clutter."""
+    g = h5.create_group(f"traj_{drops}")
+    g["obs/extra/tcp_pose"] = np.zeros((3, 7), np.float32)
+    g["stage"] = np.zeros(2, np.int64)
+    pose = np.zeros((3, 13), np.float32)
+    for name in ("panda", "distractor_0", "glass"):
+        g[f"env_states/actors/{name}"] = pose
+    for i in range(drops):
+        g[f"env_states/actors/water_{i}"] = pose + np.eye(13, dtype=np.float32)[2] * 0.01 * (i + 1)
+    return g
+
+
+def test_a_scenes_particles_are_one_object_whatever_their_number(tmp_path):
+    with h5py.File(tmp_path / "particles.h5", "w") as h5:
+        few, many = particle_episode(h5, 3), particle_episode(h5, 12)
+        names = scene_state_names(few)
+        assert names == scene_state_names(many) and names[-6:] == [
+            *(f"glass.{a}" for a in "xyz"),
+            *(f"water.{a}" for a in "xyz"),
+        ]
+        assert scene_state(few).shape == scene_state(many).shape == (3, 12)
+        assert np.allclose(scene_state(few)[:, -1], 0.02)  # the centroid of 0.01, 0.02, 0.03
+        assert np.allclose(scene_state(many)[:, -1], 0.065)
+
+
+def test_episodes_with_other_task_objects_are_refused_by_name(tmp_path):
+    from aed_models.train.encoder import SceneFrames
+
+    def lid_in_env_1(role: str, env_index: int, seed: int, steps: int):
+        meta, episode = synthetic(role, env_index, seed, steps)
+        if env_index == 1:
+            episode.env_states["actors"]["lid"] = episode.env_states["actors"]["button"]
+        return meta, episode
+
+    odd = write_synthetic_collection(
+        tmp_path, {"demo": 1}, envs=(0, 1), steps=4, make_episode=lid_in_env_1
+    )
+    with pytest.raises(ValueError, match=r"env001.* a scene state of 12 columns, 9 in .*env000"):
+        SceneFrames(load_episodes(odd))
+
+
 def test_encoder_learns_where_the_square_is(encoder_path, collection):
     log = json.loads((encoder_path.parent / "train_log.json").read_text())
     assert [e["epoch"] for e in log] == list(range(1, 9))
