@@ -13,6 +13,7 @@ import pytest
 
 from aed_eval.experiments import (
     LEDGER,
+    POLICY_STAGES,
     ExperimentsConfig,
     Job,
     Ledger,
@@ -233,8 +234,6 @@ class Evaluator(Recorder):
 
 
 def test_policies_only_plans_the_policies_and_their_novel_rollouts_and_no_detector(tmp_path):
-    from aed_eval.experiments import POLICY_STAGES
-
     jobs = plan_jobs(ExperimentsConfig(profile="mini", tasks=("PressButton",), runs=tmp_path))
     assert set(POLICY_STAGES) <= {j.stage for j in jobs}  # every name is a planned stage
     chosen = policy_jobs(jobs)
