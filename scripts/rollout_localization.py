@@ -7,7 +7,10 @@ fails at control, one that fails only where the localizer missed fails at locali
 failure at control, where its stage-target head aimed when the TCP came closest tells whether
 it aimed wrong (the head) or did not get where it aimed (the actor). Where the gripper first
 closed (the first action with a negative gripper command) against the object tells a grasp
-that missed from one that was never tried.
+that missed from one that was never tried. The follow gain tells whether the actor goes where it
+was told: the first stage's located point moved by `--shift` along x (then y), how far the
+actor's first `--steps` position actions (on the rollout's own frames) move, as a share of the
+shift (the actions' metres per unit fitted on the rollouts' own motion); 1 = it follows fully.
 
     python scripts/rollout_localization.py --policy runs/PressButton/policies/scan/policy.pt \
         --rollouts runs/PressButton/rollouts/scan/novel --demos runs/PressButton/data/novel
@@ -47,6 +50,10 @@ class Config:
     num_demos: int = 5
     near: float = 0.03
     """Metres: a located target this close (horizontally) to the object counts as found."""
+    shift: float = 0.05
+    """Metres the first stage's located point is moved by to measure the follow gain."""
+    steps: int = 30
+    """The first frames whose position actions the follow gain sums."""
 
 
 @torch.no_grad()
@@ -58,6 +65,7 @@ def main(cfg: Config) -> dict:
     demos = Demonstrations(cfg.demos, refs[0].split, cfg.num_demos)
     reader = EpisodeReader()
     located, approach, success, envs, aimed, closed_at = [], [], [], [], [], []
+    close_offsets, responses, commanded, moved = [], [], [], []
     for ref in sorted(refs, key=lambda r: r.env_index):
         sequence = reader.read(ref)
         points = policy.localizer.locate(
@@ -65,13 +73,20 @@ def main(cfg: Config) -> dict:
         )
         point = points[0, 0].numpy()
         predicted = stage_targets(policy, sequence, demos[ref.env_index], points)
+        responses.append(
+            action_response(policy, sequence, demos[ref.env_index], points, cfg.shift, cfg.steps)
+        )
         with h5py.File(ref.path, "r") as h5:
             group = h5[ref.traj]
             states = group["env_states"]
             kind = "articulations" if cfg.target in states["articulations"] else "actors"
             xy = states[kind][cfg.target][0, :2]
             tcp = group["obs/extra/tcp_pose"][()][:, :2]
-            closes = np.flatnonzero(group["actions"][()][:, -1] < 0)
+            actions = group["actions"][()]
+            closes = np.flatnonzero(actions[:, -1] < 0)
+        steps = min(cfg.steps, len(actions))
+        commanded.append(actions[:steps, :2].sum(0))
+        moved.append(tcp[steps] - tcp[0])
         located.append(float(np.linalg.norm(point[:2] - xy)))
         distance = np.linalg.norm(tcp - xy, axis=1)
         approach.append(float(distance.min()))
@@ -80,6 +95,7 @@ def main(cfg: Config) -> dict:
             float("nan") if predicted is None else float(np.linalg.norm(predicted[closest] - xy))
         )
         closed_at.append(float(distance[closes[0]]) if len(closes) else float("nan"))
+        close_offsets.append(tcp[closes[0]] - xy if len(closes) else np.full(2, np.nan))
         success.append(bool(ref.success))
         envs.append(ref.env_index)
     located, approach, success, aimed, closed_at = map(
@@ -87,6 +103,14 @@ def main(cfg: Config) -> dict:
     )
     near = located < cfg.near
     closed = closed_at[np.isfinite(closed_at)]
+    close_offsets = np.abs(np.stack(close_offsets))[np.isfinite(closed_at)]
+    # metres of TCP motion per unit of summed action, per axis, least squares through 0
+    commanded, moved = np.stack(commanded), np.stack(moved)
+    power = (commanded**2).sum(0)
+    metres_per_unit = np.where(
+        power > 0, (commanded * moved).sum(0) / np.maximum(power, 1e-12), np.nan
+    )
+    gain = np.median(np.stack(responses), axis=0) * metres_per_unit / cfg.shift
     result = {
         "rollouts": len(refs),
         "located_median_cm": 100 * float(np.median(located)),
@@ -95,6 +119,18 @@ def main(cfg: Config) -> dict:
             "rollouts": len(closed),
             "median_cm": 100 * float(np.median(closed)) if len(closed) else None,
             "within_2cm": int((closed < 0.02).sum()),
+            "median_abs_cm": {
+                axis: 100 * float(np.median(close_offsets[:, i])) if len(closed) else None
+                for i, axis in enumerate("xy")
+            },
+        },
+        "follow_gain": {
+            "shift_cm": 100 * cfg.shift,
+            "steps": cfg.steps,
+            **{
+                axis: round(float(gain[i]), 3) if np.isfinite(gain[i]) else None
+                for i, axis in enumerate("xy")
+            },
         },
         "found": {"rollouts": int(near.sum()), "successes": int(success[near].sum())},
         "missed": {"rollouts": int((~near).sum()), "successes": int(success[~near].sum())},
@@ -128,6 +164,35 @@ def main(cfg: Config) -> dict:
     }
     print(json.dumps(result, indent=1))
     return result
+
+
+@torch.no_grad()
+def action_response(
+    policy: torch.nn.Module,
+    sequence: FrameSequence,
+    demos: dict,
+    points: torch.Tensor,
+    shift: float,
+    steps: int,
+) -> np.ndarray:
+    """(2,) how much the sum of the policy's first `steps` position actions (x, y; the env's
+    action units) changes, on the rollout's own frames, when the first stage's located point
+    (1, K, 3) moves by `shift` metres along that axis."""
+    rollout = pad_sequences([sequence])
+    length = rollout["mask"].shape[1]
+
+    def summed(moved_points: torch.Tensor) -> torch.Tensor:
+        located = moved_points.flatten(1)[:, None].expand(-1, length, -1)
+        pos = policy({**rollout, "located": located}, demos)["pos"][0, :steps]
+        return (pos * policy.action_std[:3]).sum(0)
+
+    base = summed(points)
+    response = np.zeros(2)
+    for axis in range(2):
+        moved = points.clone()
+        moved[0, 0, axis] += shift
+        response[axis] = float((summed(moved) - base)[axis])
+    return response
 
 
 @torch.no_grad()

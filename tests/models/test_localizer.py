@@ -331,7 +331,25 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
     assert all(np.isfinite(r["aimed_at_closest_cm"]) for r in per_rollout)  # it has the head
     assert sum(r["located_cm"] < 3 for r in per_rollout) == found["rollouts"]
     # the synthetic episodes never command the gripper closed
-    assert diagnosis["first_close"] == {"rollouts": 0, "median_cm": None, "within_2cm": 0}
+    assert diagnosis["first_close"] == {
+        "rollouts": 0, "median_cm": None, "within_2cm": 0, "median_abs_cm": {"x": None, "y": None}
+    }  # fmt: skip
+    gain = diagnosis["follow_gain"]
+    assert (gain["shift_cm"], gain["steps"]) == (5.0, 30)
+    assert all(isinstance(gain[axis], float) and np.isfinite(gain[axis]) for axis in "xy"), gain
+    # an actor and a stage-target head that ignore the located points do not follow them at all
+    checkpoint = torch.load(cfg.out / "policy.pt", weights_only=True)
+    state, width = checkpoint["state_dict"], 3 * policy.config.localizer.num_targets
+    start = policy.history_dim + policy.task_dim
+    for key in ("actor.body.0.weight", "subgoal_head.weight"):
+        state[key][:, start : start + width] = 0
+    torch.save(checkpoint, tmp_path / "blind.pt")
+    blind = load_script("rollout_localization").main(
+        load_script("rollout_localization").Config(
+            policy=tmp_path / "blind.pt", rollouts=base, demos=base, num_demos=3
+        )
+    )
+    assert blind["follow_gain"]["x"] == blind["follow_gain"]["y"] == 0.0
     assert all(r["first_close_cm"] is None for r in per_rollout)
     missing = dataclasses.replace(cfg, out=tmp_path / "x", localizer=tmp_path / "missing.pt")
     with pytest.raises(FileNotFoundError, match="aed train-localizer"):
