@@ -72,10 +72,10 @@ def main(cfg: Config) -> dict:
             sequence.frames[:1], policy.demo_queries(demos[ref.env_index])
         )
         point = points[0, 0].numpy()
-        predicted = stage_targets(policy, sequence, demos[ref.env_index], points)
-        responses.append(
-            action_response(policy, sequence, demos[ref.env_index], points, cfg.shift, cfg.steps)
-        )
+        run = PolicyRun(policy, sequence, demos[ref.env_index])
+        outputs = run(points)
+        predicted = stage_targets(run, outputs)
+        responses.append(action_response(run, outputs, points, cfg.shift, cfg.steps))
         with h5py.File(ref.path, "r") as h5:
             group = h5[ref.traj]
             states = group["env_states"]
@@ -106,10 +106,8 @@ def main(cfg: Config) -> dict:
     close_offsets = np.abs(np.stack(close_offsets))[np.isfinite(closed_at)]
     # metres of TCP motion per unit of summed action, per axis, least squares through 0
     commanded, moved = np.stack(commanded), np.stack(moved)
-    power = (commanded**2).sum(0)
-    metres_per_unit = np.where(
-        power > 0, (commanded * moved).sum(0) / np.maximum(power, 1e-12), np.nan
-    )
+    with np.errstate(invalid="ignore", divide="ignore"):  # no commanded motion: no gain (NaN)
+        metres_per_unit = (commanded * moved).sum(0) / (commanded**2).sum(0)
     gain = np.median(np.stack(responses), axis=0) * metres_per_unit / cfg.shift
     result = {
         "rollouts": len(refs),
@@ -166,49 +164,46 @@ def main(cfg: Config) -> dict:
     return result
 
 
-@torch.no_grad()
+class PolicyRun:
+    """The policy run on one rollout's own frames (as online), given where the stage targets
+    are located (1, K, 3): the outputs of `policy.forward`, the rollout padded once."""
+
+    def __init__(self, policy: torch.nn.Module, sequence: FrameSequence, demos: dict):
+        self.policy, self.demos = policy, demos
+        self.rollout = pad_sequences([sequence])
+
+    @torch.no_grad()
+    def __call__(self, points: torch.Tensor) -> dict[str, torch.Tensor]:
+        located = points.flatten(1)[:, None].expand(-1, self.rollout["mask"].shape[1], -1)
+        return self.policy({**self.rollout, "located": located}, self.demos)
+
+
 def action_response(
-    policy: torch.nn.Module,
-    sequence: FrameSequence,
-    demos: dict,
-    points: torch.Tensor,
-    shift: float,
-    steps: int,
+    run: PolicyRun, outputs: dict, points: torch.Tensor, shift: float, steps: int
 ) -> np.ndarray:
     """(2,) how much the sum of the policy's first `steps` position actions (x, y; the env's
-    action units) changes, on the rollout's own frames, when the first stage's located point
-    (1, K, 3) moves by `shift` metres along that axis."""
-    rollout = pad_sequences([sequence])
-    length = rollout["mask"].shape[1]
+    action units) changes, against `outputs` (the run at `points`), when the first stage's
+    located point moves by `shift` metres along that axis."""
 
-    def summed(moved_points: torch.Tensor) -> torch.Tensor:
-        located = moved_points.flatten(1)[:, None].expand(-1, length, -1)
-        pos = policy({**rollout, "located": located}, demos)["pos"][0, :steps]
-        return (pos * policy.action_std[:3]).sum(0)
+    def summed(out: dict) -> torch.Tensor:
+        return (out["pos"][0, :steps] * run.policy.action_std[:3]).sum(0)
 
-    base = summed(points)
+    base = summed(outputs)
     response = np.zeros(2)
     for axis in range(2):
         moved = points.clone()
         moved[0, 0, axis] += shift
-        response[axis] = float((summed(moved) - base)[axis])
+        response[axis] = float((summed(run(moved)) - base)[axis])
     return response
 
 
-@torch.no_grad()
-def stage_targets(
-    policy: torch.nn.Module, sequence: FrameSequence, demos: dict, points: torch.Tensor
-) -> np.ndarray | None:
+def stage_targets(run: PolicyRun, outputs: dict) -> np.ndarray | None:
     """(T, 2) where the policy's stage-target head puts the current stage's end at each frame
-    (TCP + predicted offset; horizontal), run on the rollout's own frames as online, given the
-    points located in its first frame (1, K, 3); None for a policy without that head."""
-    if policy.subgoal_head is None:
+    (TCP + predicted offset; horizontal) in `outputs`; None for a policy without that head."""
+    if "subgoal" not in outputs:
         return None
-    rollout = pad_sequences([sequence])
-    located = points.flatten(1)[:, None].expand(-1, rollout["mask"].shape[1], -1)
-    subgoal = policy({**rollout, "located": located}, demos)["subgoal"][0]
-    tcp = rollout["proprio"][0, :, :3]
-    return (tcp + SUBGOAL_SCALE_M * subgoal)[:, :2].numpy()
+    tcp = run.rollout["proprio"][0, :, :3]
+    return (tcp + SUBGOAL_SCALE_M * outputs["subgoal"][0])[:, :2].numpy()
 
 
 if __name__ == "__main__":

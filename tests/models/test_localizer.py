@@ -334,6 +334,7 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
     assert diagnosis["first_close"] == {
         "rollouts": 0, "median_cm": None, "within_2cm": 0, "median_abs_cm": {"x": None, "y": None}
     }  # fmt: skip
+    assert all(r["first_close_cm"] is None for r in per_rollout)
     gain = diagnosis["follow_gain"]
     assert (gain["shift_cm"], gain["steps"]) == (5.0, 30)
     assert all(isinstance(gain[axis], float) and np.isfinite(gain[axis]) for axis in "xy"), gain
@@ -350,7 +351,6 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
         )
     )
     assert blind["follow_gain"]["x"] == blind["follow_gain"]["y"] == 0.0
-    assert all(r["first_close_cm"] is None for r in per_rollout)
     missing = dataclasses.replace(cfg, out=tmp_path / "x", localizer=tmp_path / "missing.pt")
     with pytest.raises(FileNotFoundError, match="aed train-localizer"):
         train_policy(missing, policy_config("naive_dc"))
