@@ -57,6 +57,23 @@ POLICY_STAGES = (
 )
 """The main stages a policy's novel success rate stands on (`--policies-only`)."""
 
+READS = {
+    "train scene encoder": ("collect base split",),
+    "train target localizer": ("collect base split",),
+    "train policies": ("collect base split", "train scene encoder", "train target localizer"),
+    "train detectors": ("collect base split", "train policies"),
+    "roll out policies": ("collect novel split", "train policies"),
+    "calibrate detectors": ("train detectors", "roll out policies"),
+    "evaluate": (
+        "collect novel split",
+        "train detectors",
+        "roll out policies",
+        "calibrate detectors",
+    ),
+}
+"""What each main stage reads of the stages before it (of its task: the shared jobs and its own
+case's). A job is done only while what it read is: a retrained policy is rolled out again."""
+
 
 @dataclass
 class ExperimentsConfig:
@@ -154,15 +171,19 @@ class Job:
     config: Any
     experiment: str = "main"
     case: str | None = None
+    inputs: tuple[Job, ...] = dataclasses.field(default=(), repr=False, compare=False)
 
     @property
     def digest(self) -> str:
-        """What the job does: its function and every field of its config."""
+        """What the job does: its function, every field of its config and the digests of the
+        jobs whose outputs it reads (`inputs`)."""
         name = getattr(self.fn, "__qualname__", type(self.fn).__qualname__)
-        record = {
+        record: dict[str, Any] = {
             "fn": f"{self.fn.__module__}.{name}",
             "config": dataclasses.asdict(self.config),
         }
+        if self.inputs:
+            record["inputs"] = sorted(j.digest for j in self.inputs)
         text = json.dumps(record, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -220,11 +241,14 @@ def main_jobs(
     """One task's main stages, case by case: first the jobs every case shares, then each
     policy's own (its training, its detectors, rollouts, calibrations and evaluation), so that
     a run stopped part-way has finished whole (task, policy) cases."""
-    jobs = [
-        Job(task, stage.name, fn, config, case=case_policy(config, task, policies, layout))
-        for stage in stages
-        for fn, config in stage.jobs
-    ]
+    jobs: list[Job] = []
+    for stage in stages:
+        for fn, config in stage.jobs:
+            case = case_policy(config, task, policies, layout)
+            inputs = tuple(
+                j for j in jobs if j.stage in READS.get(stage.name, ()) and j.case in (None, case)
+            )
+            jobs.append(Job(task, stage.name, fn, config, case=case, inputs=inputs))
     return [j for j in jobs if j.case is None] + [
         j for policy in policies for j in jobs if j.case == policy
     ]

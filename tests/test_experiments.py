@@ -11,20 +11,24 @@ from pathlib import Path
 
 import pytest
 
+from aed_eval.demo import Stage
 from aed_eval.experiments import (
     LEDGER,
     POLICY_STAGES,
+    READS,
     ExperimentsConfig,
     Job,
     Ledger,
     case_digest,
     case_jobs,
+    main_jobs,
     plan_jobs,
     policy_jobs,
     run_jobs,
     status_lines,
 )
 from aed_eval.results import load_record
+from aed_models.layout import RunLayout
 from aed_tasks import PAPER_TASK_ORDER
 from tests.helpers import aed
 
@@ -94,6 +98,53 @@ def test_the_digest_follows_every_field_of_the_config():
     job = Job("T", "stage", fn, Step("a"))
     assert job.digest == Job("T", "other name", fn, Step("a")).digest
     assert job.digest != dataclasses.replace(job, config=Step("a", 1)).digest
+
+
+@dataclass
+class Reads:
+    """A stand-in stage config: the policy it reads (None: none) and a value to change."""
+
+    name: str
+    policy: str | None = None
+    value: int = 0
+
+
+def two_cases(fn: Recorder, **changed: int) -> list[Job]:
+    """One task's main stages over two policies, `changed` naming the jobs whose value moves."""
+
+    def stage(name: str, *configs: Reads) -> Stage:
+        return Stage(
+            name, [(fn, dataclasses.replace(c, value=changed.get(c.name, 0))) for c in configs]
+        )
+
+    return main_jobs(
+        "T",
+        [
+            stage("collect base split", Reads("collect")),
+            stage("train policies", Reads("train dct", "dct"), Reads("train scan", "scan")),
+            stage("train detectors", Reads("lstm_ed"), Reads("probe scan", "scan")),
+            stage("roll out policies", Reads("roll dct", "dct"), Reads("roll scan", "scan")),
+        ],
+        ("dct", "scan"),
+        RunLayout(Path("runs")),
+    )
+
+
+def test_a_retrained_policy_reruns_what_reads_it_and_nothing_else(tmp_path):
+    every = {j.stage for j in plan_jobs(ExperimentsConfig(profile="mini", runs=tmp_path))}
+    assert set(READS) | {s for stages in READS.values() for s in stages} <= every
+    ledger, fn = Ledger(tmp_path / LEDGER), Recorder()
+    assert run_jobs(two_cases(fn), ledger) == 7
+    assert run_jobs(two_cases(fn, **{"train scan": 1}), ledger) == 3
+    assert fn.ran[7:] == ["train scan", "probe scan", "roll scan"]
+    assert run_jobs(two_cases(fn, **{"train scan": 1, "lstm_ed": 1}), ledger) == 1  # read by none
+    assert run_jobs(two_cases(fn, collect=1), ledger) == 7  # all read the base data
+    jobs = plan_jobs(ExperimentsConfig(profile="mini", tasks=("PressButton",), runs=tmp_path))
+    roll = next(j for j in jobs if j.stage == "roll out policies" and j.case == "scan")
+    assert {(j.stage, j.case) for j in roll.inputs} == {
+        ("collect novel split", None),
+        ("train policies", "scan"),
+    }
 
 
 def test_a_corrupt_ledger_is_named_in_one_line(tmp_path, caplog, capsys):
