@@ -120,11 +120,15 @@ class PolicyRecipe(Recipe):
         rollout_frames: how `max_frames` picks rollout frames: even, or a fresh random subset
             per draw.
         shift: random-shift augmentation in pixels, per sequence (0: off).
+        feature_dropout: the chance that a training rollout's cached visual features are zeroed
+            for the whole sequence, so that the actor also learns to act from the located
+            points and proprioception alone; online the features are always on (0: off).
     """
 
     composition: tuple[int, int]
     rollout_frames: Literal["even", "random"]
     shift: int
+    feature_dropout: float
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -135,6 +139,8 @@ class PolicyRecipe(Recipe):
             raise ValueError(f"rollout_frames={self.rollout_frames!r}: even or random")
         if self.shift < 0:
             raise ValueError(f"shift={self.shift}: must be >= 0")
+        if not 0 <= self.feature_dropout < 1:
+            raise ValueError(f"feature_dropout={self.feature_dropout}: must be in [0, 1)")
 
 
 @dataclass

@@ -227,7 +227,14 @@ def trained_policies(root: Path) -> dict[str, Any]:
     out = {}
     for name in ("naive_dc", "dct", "scan"):
         cfg = TrainPolicyConfig.from_preset(  # end to end, shifted: the mini recipe of then
-            "PressButton", name, data=data, out=root / name, epochs=2, progress=False, shift=4
+            "PressButton",
+            name,
+            data=data,
+            out=root / name,
+            epochs=2,
+            progress=False,
+            shift=4,
+            feature_dropout=0.0,
         )
         config = tiny_config(name)
         config.action_chunk = 1  # the actor of then: one action a step

@@ -58,6 +58,7 @@ class PolicyConfig:
     mini_max_frames: ClassVar[int] = 0
     mini_rollout_frames: ClassVar[str] = "even"
     mini_action_chunk: ClassVar[int] = 10  # under mini and demo
+    mini_feature_dropout: ClassVar[float] = 0.5  # under mini and demo
 
     visual: VisualHeadConfig = field(default_factory=VisualHeadConfig)
     actor_hidden: tuple[int, ...] = (256, 64)
@@ -136,6 +137,7 @@ class PolicyConfig:
                 composition=COMPOSITIONS["policy"].drawn()[:2],
                 rollout_frames="even",
                 shift=0,
+                feature_dropout=0.0,
             )
         opt = optimiser(profile)
         return PolicyRecipe(
@@ -146,6 +148,7 @@ class PolicyConfig:
             composition=cls.demo_composition if profile == "demo" else cls.mini_composition,
             rollout_frames=cls.mini_rollout_frames,
             shift=0,  # the frozen encoder was trained shifted; its features are cached
+            feature_dropout=cls.mini_feature_dropout,
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -48,8 +48,11 @@ RESUME_FIELDS = (
     "composition",
     "rollout_frames",
     "shift",
+    "feature_dropout",
     "augment",
 )
+# A field that checkpoints written before it existed trained without: its value then.
+ABSENT_MEANS = {"feature_dropout": 0.0}
 
 
 def check_task(episodes: list, task: str, data: Path) -> None:
@@ -71,7 +74,7 @@ def check_same_training(
     last_path: Path, extra: dict[str, Any], train_config: dict[str, Any], key: str
 ) -> None:
     """Refuse to resume a training under other data or settings, naming the first difference."""
-    stored = extra.get("train_config", {})
+    stored = {**ABSENT_MEANS, **extra.get("train_config", {})}
     for name in RESUME_FIELDS:
         if name in stored and name in train_config and stored[name] != train_config[name]:
             raise ValueError(

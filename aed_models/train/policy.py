@@ -141,7 +141,8 @@ def random_shift(frames: torch.Tensor, shift: int, generator: torch.Generator) -
 
 
 def prepare(batch: dict[str, Any], cfg: TrainPolicyConfig, device: torch.device) -> dict[str, Any]:
-    """Augment (seeded by seed, epoch, environment) and move an iteration's tensors to `device`."""
+    """Augment (seeded by seed, epoch, environment) and move an iteration's tensors to `device`:
+    frames shifted, and each rollout's cached features dropped whole at `feature_dropout`."""
     seed = int(
         np.random.default_rng([cfg.seed, batch["epoch"], batch["env_index"]]).integers(2**62)
     )
@@ -152,6 +153,10 @@ def prepare(batch: dict[str, Any], cfg: TrainPolicyConfig, device: torch.device)
         if "frames" in group:  # cached features of a frozen head are not shifted
             group["frames"] = random_shift(group["frames"], cfg.shift, generator)
         out[key] = group
+    if cfg.feature_dropout > 0:
+        features = out["rollouts"]["features"]
+        kept = torch.rand(features.shape[0], generator=generator) >= cfg.feature_dropout
+        out["rollouts"]["features"] = features * kept.to(features).view(-1, 1, 1)
     return out
 
 
@@ -215,6 +220,11 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
         policy.localizer.load_state_dict(localizer.state_dict())
         policy.localizer.requires_grad_(False)
         located = located_points(localizer, episodes, num_demos=cfg.composition[0])
+    if cfg.feature_dropout > 0 and not policy_cfg.frozen_encoder:
+        raise ValueError(
+            f"feature_dropout={cfg.feature_dropout} drops cached features: it needs a policy "
+            "with frozen_encoder=True (this one trains its visual head end to end)"
+        )
     features, encoder_sha = None, None
     if policy_cfg.frozen_encoder:
         encoder_sha = freeze_encoder(policy, cfg.encoder)

@@ -308,6 +308,7 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
     cfg = TrainPolicyConfig.from_preset(
         "PressButton", "naive_dc", "mini", data=base, out=tmp_path / "policy",
         localizer=localizer_path, epochs=2, progress=False, num_envs=0, composition=(2, 2),
+        feature_dropout=0.0,  # end to end: no cached features
     )  # fmt: skip
     policy = load_policy(train_policy(cfg, policy_config("naive_dc", LocalizerConfig())))
     localizer = load_localizer(localizer_path)

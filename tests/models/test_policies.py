@@ -3,6 +3,7 @@ training (loss falls, resume is exact) on small synthetic collections."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections import Counter
 from pathlib import Path
@@ -14,7 +15,8 @@ import torch
 from aed_models.checkpoint import CheckpointError, save_checkpoint
 from aed_models.nn import VisualHeadConfig
 from aed_models.policies import POLICIES, load_policy, make_policy, save_policy
-from aed_models.train.policy import TrainPolicyConfig, train_policy
+from aed_models.train.common import check_same_training
+from aed_models.train.policy import TrainPolicyConfig, prepare, train_policy
 from aed_tasks import trajectory
 from aed_tasks.episode import Episode
 from tests.helpers import load_script, recorded_episode, write_synthetic_collection
@@ -293,7 +295,14 @@ def collection(tmp_path_factory) -> Path:
 
 
 def train_config(collection: Path, out: Path, **kw) -> TrainPolicyConfig:
-    base = {"task": "PressButton", "data": collection, "out": out, "progress": False, "shift": 2}
+    base = {
+        "task": "PressButton",
+        "data": collection,
+        "out": out,
+        "progress": False,
+        "shift": 2,  # end to end: frames are shifted, there are no cached features to drop
+        "feature_dropout": 0.0,
+    }
     return TrainPolicyConfig.from_preset(**{**base, **kw})
 
 
@@ -381,6 +390,36 @@ def test_resume_gives_the_same_weights(collection, tmp_path):
         )
 
 
+def test_feature_dropout_zeroes_whole_rollouts_reproducibly(collection, tmp_path):
+    """Each rollout's cached features are kept or zeroed whole, at about the recipe's rate, the
+    same for the same (seed, epoch, environment); the demonstrations' features stay."""
+    ones = {"features": torch.ones(400, 6, 8), "mask": torch.ones(400, 6)}
+    batch = {"epoch": 3, "env_index": 1, "demos": dict(ones), "rollouts": dict(ones)}
+    cfg = train_config(collection, tmp_path, policy="scan", feature_dropout=0.5, shift=0)
+    dropped = prepare(batch, cfg, torch.device("cpu"))
+    kept = dropped["rollouts"]["features"].flatten(1)
+    assert ((kept == 0).all(1) | (kept == 1).all(1)).all()
+    assert 0.4 < kept[:, 0].mean() < 0.6
+    assert torch.equal(dropped["demos"]["features"], ones["features"])
+    again = prepare(batch, cfg, torch.device("cpu"))["rollouts"]["features"]
+    assert torch.equal(again, dropped["rollouts"]["features"])
+    other = prepare({**batch, "epoch": 4}, cfg, torch.device("cpu"))["rollouts"]["features"]
+    assert not torch.equal(other, dropped["rollouts"]["features"])
+    off = dataclasses.replace(cfg, feature_dropout=0.0)
+    assert torch.equal(
+        prepare(batch, off, torch.device("cpu"))["rollouts"]["features"], ones["features"]
+    )
+    with pytest.raises(ValueError, match="feature_dropout=1.0: must be in"):
+        dataclasses.replace(cfg, feature_dropout=1.0)
+    with pytest.raises(ValueError, match="needs a policy with frozen_encoder=True"):
+        train_policy(cfg, tiny_config("scan"))  # end to end: nothing cached to drop
+    # a checkpoint written before the field existed trained without it: not resumed under it
+    then = {"train_config": {"task": "PressButton"}, "data_key": "k"}
+    check_same_training(tmp_path / "last.pt", then, {"feature_dropout": 0.0}, "k")
+    with pytest.raises(ValueError, match="trained with feature_dropout=0.0, this run asks 0.5"):
+        check_same_training(tmp_path / "last.pt", then, {"feature_dropout": 0.5}, "k")
+
+
 def test_paper_profile_runs_one_iteration(collection, tmp_path):
     cfg = TrainPolicyConfig.from_preset(
         "PressButton",
@@ -419,6 +458,7 @@ def test_train_config_defaults_and_errors():
     assert POLICIES.preset("scan", "mini").proprio and not POLICIES.preset("scan", "paper").proprio
     assert TrainPolicyConfig.from_preset(composition=[3, 4]).composition == (3, 4)
     assert (mini.composition, mini.epochs, paper.composition) == ((5, 2), 100, (5, 10))
+    assert (mini.feature_dropout, paper.feature_dropout) == (0.5, 0.0)
     assert TrainPolicyConfig.from_preset(policy="naive_dc").composition == (5, 8)
     assert (
         POLICIES.preset("dct", "mini").subgoal_weight > 0
