@@ -175,13 +175,17 @@ class Job:
 
     @property
     def digest(self) -> str:
-        """What the job does: its function, every field of its config and the digests of the
-        jobs whose outputs it reads (`inputs`)."""
+        """What the job does: its function, every field of its config, the config of the
+        model a training builds (its `model_preset()`: the profile's sizes are not fields of
+        the run) and the digests of the jobs whose outputs it reads (`inputs`)."""
         name = getattr(self.fn, "__qualname__", type(self.fn).__qualname__)
         record: dict[str, Any] = {
             "fn": f"{self.fn.__module__}.{name}",
             "config": dataclasses.asdict(self.config),
         }
+        model_preset = getattr(self.config, "model_preset", None)
+        if model_preset is not None:
+            record["model"] = dataclasses.asdict(model_preset())
         if self.inputs:
             record["inputs"] = sorted(j.digest for j in self.inputs)
         text = json.dumps(record, sort_keys=True, default=str)

@@ -147,6 +147,37 @@ def test_a_retrained_policy_reruns_what_reads_it_and_nothing_else(tmp_path):
     }
 
 
+def test_a_changed_model_preset_retrains_its_model_and_what_reads_it(tmp_path, monkeypatch):
+    """A model's sizes are its preset's, not fields of the training run: changing the preset
+    (here the localizer's cells) changes that training's job and those reading it, and leaves
+    the collections and the scene encoder done."""
+    from aed_models.localizer import LocalizerConfig
+
+    def digests() -> dict[tuple[str, str | None], set[str]]:
+        cfg = ExperimentsConfig(profile="mini", tasks=("PressButton",), runs=tmp_path)
+        out: dict[tuple[str, str | None], set[str]] = {}
+        for job in plan_jobs(cfg):
+            out.setdefault((job.stage, job.case), set()).add(job.digest)
+        return out
+
+    before = digests()
+    preset = LocalizerConfig.preset
+    monkeypatch.setattr(
+        LocalizerConfig,
+        "preset",
+        classmethod(lambda cls, profile: dataclasses.replace(preset(profile), stride=8)),
+    )
+    after = digests()
+    changed = {key for key in before if before[key] != after[key]}
+    assert ("train target localizer", None) in changed
+    assert {("train policies", p) for p in ("naive_dc", "dct", "scan")} <= changed
+    assert not changed & {
+        ("collect base split", None),
+        ("collect novel split", None),
+        ("train scene encoder", None),
+    }
+
+
 def test_a_corrupt_ledger_is_named_in_one_line(tmp_path, caplog, capsys):
     (tmp_path / LEDGER).write_text("{not json")
     status, errors, _ = aed(["experiments", "--plan", "--runs", str(tmp_path)], caplog, capsys)

@@ -21,8 +21,9 @@ FROZEN = (
 )
 LOCALIZER = (
     "the mini policies read where the demonstrations' stage targets are in the rollout's first "
-    "frame (the task's target localizer, aed train-localizer), at the nearest surface's depth "
-    "within 4 pixels of the match"
+    "frame (the task's target localizer, aed train-localizer), matched on 4-pixel cells at the "
+    "nearest surface's depth within 4 pixels, or at the demonstrations' height of the stage "
+    "where that depth is more than 3 cm from it"
 )
 CHUNK = (
     "the mini DCT and SCAN predict the next 10 actions at every step and act on their temporal "
@@ -105,7 +106,14 @@ INTENDED = [
         (
             ("recipes", f"model/{name}/{profile}", "localizer"),
             ABSENT,
-            {"width": 32, "dim": 32, "num_targets": 1, "depth_window": 4}
+            {
+                "width": 32,
+                "dim": 32,
+                "num_targets": 1,
+                "depth_window": 4,
+                "stride": 4,
+                "height_tolerance": 0.03,
+            }
             if profile == "mini"
             else None,
             LOCALIZER,

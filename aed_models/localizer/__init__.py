@@ -5,10 +5,12 @@ stages end.
     queries = localizer.queries(first_frames, stage_points)  # from a few demonstrations
     points = localizer.locate(frames, queries)               # (N, K, 3) world points
 
-A fully convolutional map gives every 8 x 8 pixel cell a unit feature. A demonstration's
-query for stage k is the feature, in its first frame, under the point where its TCP ended
-stage k (projected with the fixed camera); in a new frame of the same environment the cell
-most like the query is where stage k will end, lifted to 3-d with the frame's depth. Trained
+A fully convolutional map gives every cell (4 x 4 pixels under `mini`) a unit feature. A
+demonstration's query for stage k is the feature, in its first frame, under the point where its
+TCP ended stage k (projected with the fixed camera); in a new frame of the same environment the
+cell most like the query is where stage k will end, lifted to 3-d with the frame's depth, or,
+where that depth is of a surface behind the target, at the height the demonstrations ended
+the stage. Trained
 on base environments to match across episodes under a shared random recolouring, it matches
 by appearance, which is what carries to the novel split's unseen objects. Under `mini` the
 policies read the located points (offsets from the TCP) beside their features.

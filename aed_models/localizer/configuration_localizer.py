@@ -23,12 +23,23 @@ class LocalizerConfig:
             of it: a match a few pixels off an object's silhouette otherwise reads the table
             behind it. 0 reads the pixel's own, as the localizers saved before this field did
             (they load with it); the `mini` and `demo` presets use 4.
+        stride: pixels per side of a matching cell, 8 or 4 (4 times the cells: finer points
+            at about twice the cost). Localizers saved before this field load with 8; the
+            `mini` and `demo` presets use 4.
+        height_tolerance: metres. A located point whose depth puts it further than this from
+            the height at which the demonstrations ended its stage is placed at that height
+            along its pixel's ray instead: a stage that ends in mid-air (a glass held over its
+            coaster) or behind what the camera sees (a handle pushed home) has the depth of
+            the surface behind it. 0 = off, as the localizers saved before this field; the
+            `mini` and `demo` presets use 0.03.
     """
 
     width: int = 32
     dim: int = 32
     num_targets: int = 1
     depth_window: int = 0
+    stride: int = 8
+    height_tolerance: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("width", "dim", "num_targets"):
@@ -36,13 +47,17 @@ class LocalizerConfig:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
         if self.depth_window < 0:
             raise ValueError(f"depth_window={self.depth_window}: must be >= 0")
+        if self.stride not in (4, 8):
+            raise ValueError(f"stride={self.stride}: 4 or 8")
+        if not (math.isfinite(self.height_tolerance) and self.height_tolerance >= 0):
+            raise ValueError(f"height_tolerance={self.height_tolerance}: must be >= 0 (0: off)")
         if self.width % 8:
             raise ValueError(f"width={self.width}: must be a multiple of 8 (GroupNorm of 8)")
 
     @classmethod
     def preset(cls, profile: str) -> LocalizerConfig:
         check_profile(profile)
-        return cls(depth_window=4)
+        return cls(depth_window=4, stride=4, height_tolerance=0.03)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -9,17 +11,25 @@ from torch import nn
 from aed_models.data import DEPTH_SCALE_MM
 from aed_models.localizer.configuration_localizer import LocalizerConfig
 
-STRIDE = 8  # a feature cell, in pixels
+
+class StageQueries(NamedTuple):
+    """What the demonstrations tell the localizer of each of the K stage targets: the matching
+    map's feature under it (K, D) and the height (m) at which they ended the stage (K,)."""
+
+    features: torch.Tensor
+    heights: torch.Tensor
 
 
 class MatchingMap(nn.Module):
-    """(N, 4, H, W) -> (N, dim, H / 8, W / 8) unit feature vectors, one per cell."""
+    """(N, 4, H, W) -> (N, dim, H / stride, W / stride) unit feature vectors, one per cell
+    of `stride` x `stride` pixels (8 or 4: the last conv at stride 2 or 1)."""
 
-    def __init__(self, width: int, dim: int):
+    def __init__(self, width: int, dim: int, stride: int = 8):
         super().__init__()
         layers, channels = [], 4
-        for w, stride in ((width, 2), (width, 2), (2 * width, 1), (2 * width, 2)):
-            layers += [nn.Conv2d(channels, w, 3, stride, 1), nn.GroupNorm(8, w), nn.ReLU()]
+        last = 2 if stride == 8 else 1
+        for w, s in ((width, 2), (width, 2), (2 * width, 1), (2 * width, last)):
+            layers += [nn.Conv2d(channels, w, 3, s, 1), nn.GroupNorm(8, w), nn.ReLU()]
             channels = w
         layers += [nn.Conv2d(channels, 2 * width, 3, 1, 2, dilation=2), nn.ReLU()]
         self.body = nn.Sequential(*layers, nn.Conv2d(2 * width, dim, 1))
@@ -33,10 +43,11 @@ class MatchingMap(nn.Module):
         return torch.einsum("ndhw,nd->nhw", maps, queries).flatten(1) * self.log_scale.exp()
 
 
-def sample(maps: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
-    """The unit feature (N, D) of each map (N, D, h, w) at its pixel (N, 2) = (u, v), bilinear."""
+def sample(maps: torch.Tensor, pixels: torch.Tensor, stride: int) -> torch.Tensor:
+    """The unit feature (N, D) of each map (N, D, h, w) of `stride`-pixel cells at its pixel
+    (N, 2) = (u, v), bilinear."""
     h, w = maps.shape[-2:]
-    cells = (pixels + 0.5) / STRIDE - 0.5
+    cells = (pixels + 0.5) / stride - 0.5
     grid = torch.stack(
         [2 * cells[:, 0] / max(w - 1, 1) - 1, 2 * cells[:, 1] / max(h - 1, 1) - 1], dim=-1
     )
@@ -44,16 +55,16 @@ def sample(maps: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
     return F.normalize(out[:, :, 0, 0], dim=1)
 
 
-def target_cells(pixels: torch.Tensor, h: int, w: int) -> torch.Tensor:
-    """The flat index of the cell (N,) holding each pixel (N, 2)."""
-    col = (pixels[:, 0] / STRIDE).floor().clamp(0, w - 1)
-    row = (pixels[:, 1] / STRIDE).floor().clamp(0, h - 1)
+def target_cells(pixels: torch.Tensor, h: int, w: int, stride: int) -> torch.Tensor:
+    """The flat index of the `stride`-pixel cell (N,) holding each pixel (N, 2)."""
+    col = (pixels[:, 0] / stride).floor().clamp(0, w - 1)
+    row = (pixels[:, 1] / stride).floor().clamp(0, h - 1)
     return (row * w + col).long()
 
 
-def refined_pixels(logits: torch.Tensor) -> torch.Tensor:
-    """(..., h, w) score maps -> (..., 2) pixels (u, v): the best cell, refined to the
-    softmax-weighted mean of the cell centres in the 3 x 3 cells around it."""
+def refined_pixels(logits: torch.Tensor, stride: int) -> torch.Tensor:
+    """(..., h, w) score maps of `stride`-pixel cells -> (..., 2) pixels (u, v): the best
+    cell, refined to the softmax-weighted mean of the cell centres in the 3 x 3 around it."""
     h, w = logits.shape[-2:]
     flat = logits.flatten(-2)
     best = flat.argmax(-1, keepdim=True)
@@ -63,7 +74,7 @@ def refined_pixels(logits: torch.Tensor) -> torch.Tensor:
     weights = torch.softmax(flat.masked_fill(~near, float("-inf")), dim=-1)
     v = (weights * rows.to(weights.dtype)).sum(-1)
     u = (weights * cols.to(weights.dtype)).sum(-1)
-    return (torch.stack([u, v], dim=-1) + 0.5) * STRIDE
+    return (torch.stack([u, v], dim=-1) + 0.5) * stride
 
 
 def nearest_surface(depth: torch.Tensor, window: int) -> torch.Tensor:
@@ -103,7 +114,7 @@ class TargetLocalizer(nn.Module):
     def __init__(self, config: LocalizerConfig):
         super().__init__()
         self.config = config
-        self.map = MatchingMap(config.width, config.dim)
+        self.map = MatchingMap(config.width, config.dim, config.stride)
         self.register_buffer("intrinsic", torch.eye(3, dtype=torch.float64))
         self.register_buffer("extrinsic", torch.eye(3, 4, dtype=torch.float64))
         self.sha256 = ""
@@ -125,10 +136,18 @@ class TargetLocalizer(nn.Module):
         cam = rays * depth_m.double()[..., None]
         return ((cam - self.extrinsic[:, 3]) @ self.extrinsic[:, :3]).float()
 
-    def queries(self, first_frames: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    def at_height(self, pixels: torch.Tensor, heights: torch.Tensor) -> torch.Tensor:
+        """Pixels (..., 2) -> the world points (..., 3) where their rays cross the horizontal
+        planes z = heights (...)."""
+        centre = self.unproject(pixels, torch.zeros_like(pixels[..., 0]))  # the camera
+        direction = self.unproject(pixels, torch.ones_like(pixels[..., 0])) - centre
+        along = (heights.to(centre.dtype) - centre[..., 2]) / direction[..., 2]
+        return centre + along[..., None] * direction
+
+    def queries(self, first_frames: torch.Tensor, points: torch.Tensor) -> StageQueries:
         """Demonstrations' first frames (N, 4, H, W) and where each ended its K stages
-        (N, K, 3) -> the K queries (K, D): the mean over demonstrations of the map's feature
-        under each point."""
+        (N, K, 3) -> per stage, the mean over demonstrations of the map's feature under its
+        point and of its height."""
         n, k = points.shape[:2]
         if k != self.config.num_targets:
             raise ValueError(
@@ -137,20 +156,29 @@ class TargetLocalizer(nn.Module):
             )
         maps = self.map(first_frames)
         pixels = self.project(points).reshape(n * k, 2)
-        feats = sample(maps.repeat_interleave(k, dim=0), pixels)
-        return feats.view(n, k, -1).mean(0)
+        feats = sample(maps.repeat_interleave(k, dim=0), pixels, self.config.stride)
+        return StageQueries(feats.view(n, k, -1).mean(0), points[..., 2].float().mean(0))
 
-    def locate(self, frames: torch.Tensor, queries: torch.Tensor) -> torch.Tensor:
-        """Frames (B, 4, H, W) and queries (K, D) -> world points (B, K, 3): per query, the
-        best-matching cell refined to a pixel, at the frame's depth there."""
+    def locate(self, frames: torch.Tensor, queries: StageQueries) -> torch.Tensor:
+        """Frames (B, 4, H, W) and the demonstrations' queries -> world points (B, K, 3): per
+        stage, the best-matching cell refined to a pixel, lifted at the frame's depth there;
+        a point lifted further than `height_tolerance` from the stage's height is put at that
+        height along the pixel's ray instead (a stage that ends in mid-air or behind what
+        the camera sees: the depth there is of the surface behind)."""
         maps = self.map(frames)
         b, _, h, w = maps.shape
-        logits = torch.einsum("bdhw,kd->bkhw", maps, queries) * self.map.log_scale.exp()
-        pixels = refined_pixels(logits)  # (B, K, 2)
+        features = queries.features.to(maps.dtype)
+        logits = torch.einsum("bdhw,kd->bkhw", maps, features) * self.map.log_scale.exp()
+        pixels = refined_pixels(logits, self.config.stride)  # (B, K, 2)
         height, width = frames.shape[-2:]
         u = pixels[..., 0].long().clamp(0, width - 1)
         v = pixels[..., 1].long().clamp(0, height - 1)
         rows = torch.arange(b, device=frames.device)[:, None]
         depth = nearest_surface(frames[:, 3], self.config.depth_window)
         depth_m = depth[rows, v, u] * DEPTH_SCALE_MM / 1000.0
-        return self.unproject(pixels, depth_m)
+        lifted = self.unproject(pixels, depth_m)
+        if self.config.height_tolerance == 0:
+            return lifted
+        heights = queries.heights.to(lifted.device).expand(b, -1)
+        off = (lifted[..., 2] - heights).abs() > self.config.height_tolerance
+        return torch.where(off[..., None], self.at_height(pixels, heights), lifted)

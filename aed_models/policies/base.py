@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import torch
@@ -43,6 +43,9 @@ from aed_models.nn.batch import check_sequences
 from aed_models.nn.encoders import build_visual_head, encode_frames
 from aed_models.nn.mlp import mlp
 from aed_models.policies.configuration_base import PolicyConfig
+
+if TYPE_CHECKING:
+    from aed_models.localizer.modeling_localizer import StageQueries
 
 logger = logging.getLogger(__name__)
 
@@ -229,8 +232,8 @@ class DCPolicy(nn.Module):
         return f, PolicyFeatures(history, task)
 
     # -- target localizer ------------------------------------------------------------------
-    def demo_queries(self, demos: dict) -> torch.Tensor:
-        """The localizer's K queries (K, D) from the demonstrations' first frames and where
+    def demo_queries(self, demos: dict) -> StageQueries:
+        """The localizer's K stage queries from the demonstrations' first frames and where
         each ended its stages (their `subgoal` targets, unthinned)."""
         frames, mask = demos.get("frames"), demos.get("mask")
         if frames is None or frames.dim() != 5 or mask is None or demos.get("subgoal") is None:

@@ -205,6 +205,11 @@ class TrainingRun:
             raise ValueError(f"num_envs={self.num_envs}: must be >= 0")
         self.data, self.out = Path(self.data), Path(self.out)
 
+    def model_preset(self) -> Any:
+        """The config of the model this run trains when it is given none: the profile's
+        preset. It is part of what an `aed experiments` job is, so a changed preset retrains."""
+        raise NotImplementedError
+
 
 @dataclass(kw_only=True)
 class TaskModelTraining(TrainingRun):

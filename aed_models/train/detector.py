@@ -77,6 +77,9 @@ class TrainDetectorConfig(TrainingRun, DetectorRecipe):
         if self.workers < 0:
             raise ValueError(f"workers={self.workers}: must be >= 0")
 
+    def model_preset(self) -> Any:
+        return DETECTORS.preset(self.detector, self.profile)
+
     @classmethod
     def from_preset(
         cls,
@@ -210,7 +213,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
     )
 
     # model and optimiser
-    detector_cfg = detector_cfg or DETECTORS.preset(cfg.detector, cfg.profile)
+    detector_cfg = detector_cfg or cfg.model_preset()
     overrides = {"history_dim": policy.history_dim} if policy is not None else {}
     if policy is not None and cfg.detector == "probe":
         overrides["task_dim"] = policy.task_dim

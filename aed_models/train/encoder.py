@@ -26,6 +26,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from aed_models.checkpoint import Checkpoint
 from aed_models.data import EpisodeReader, load_episodes, scene_state, scene_state_names
 from aed_models.encoder import FAMILY, NAME, EncoderConfig, EncoderRecipe
 from aed_models.encoder.modeling_encoder import SceneEncoder
@@ -55,6 +56,9 @@ class TrainEncoderConfig(TaskModelTraining, EncoderRecipe):
     recipe: ClassVar[type[Recipe]] = EncoderRecipe
     layout_name: ClassVar[str] = "encoder"
     not_in_paper: ClassVar[str] = "the paper trains its visual heads end to end"
+
+    def model_preset(self) -> EncoderConfig:
+        return EncoderConfig.preset(self.profile)
 
 
 class SceneFrames:
@@ -147,7 +151,7 @@ def train_encoder(cfg: TrainEncoderConfig, encoder_cfg: EncoderConfig | None = N
 
     # model and optimiser
     config = dataclasses.replace(
-        encoder_cfg or EncoderConfig.preset(cfg.profile), state_names=state_names(episodes[0])
+        encoder_cfg or cfg.model_preset(), state_names=state_names(episodes[0])
     )
     encoder = SceneEncoder(config)
     optimizer = torch.optim.Adam(encoder.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -163,7 +167,13 @@ def train_encoder(cfg: TrainEncoderConfig, encoder_cfg: EncoderConfig | None = N
             **trained_on(episodes),
         },
     )
-    resumed = folder.resume(encoder, optimizer) if cfg.resume else None
+
+    def same(ckpt: Checkpoint) -> str | None:
+        if EncoderConfig.from_dict(ckpt.config) != config:
+            return f"trained with another scene encoder config ({ckpt.config})"
+        return None  # (fields added since take their defaults)
+
+    resumed = folder.resume(encoder, optimizer, same) if cfg.resume else None
     if resumed is None:
         encoder.set_state_stats(torch.from_numpy(np.concatenate(data.states)))
     start_epoch, log = resumed or (0, [])

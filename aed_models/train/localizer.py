@@ -29,9 +29,11 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from aed_models.checkpoint import Checkpoint
 from aed_models.data import EpisodeReader, load_episodes, stage_end_points, stage_subgoals
 from aed_models.localizer import FAMILY, NAME, LocalizerConfig, LocalizerRecipe
 from aed_models.localizer.modeling_localizer import (
+    StageQueries,
     TargetLocalizer,
     colour_jitter,
     sample,
@@ -64,6 +66,9 @@ class TrainLocalizerConfig(TaskModelTraining, LocalizerRecipe):
     recipe: ClassVar[type[Recipe]] = LocalizerRecipe
     layout_name: ClassVar[str] = "localizer"
     not_in_paper: ClassVar[str] = "the paper's policies have no localizer"
+
+    def model_preset(self) -> LocalizerConfig:
+        return LocalizerConfig.preset(self.profile)
 
 
 @dataclass
@@ -172,9 +177,10 @@ def pair_loss(
 ) -> torch.Tensor:
     """Cross-entropy of the target frame's cells scored by the query's feature."""
     maps = localizer.map(pairs.flatten(0, 1)).unflatten(0, (len(pairs), 2))
-    queries = sample(maps[:, 0], q_pix)
+    stride = localizer.config.stride
+    queries = sample(maps[:, 0], q_pix, stride)
     logits = localizer.map.logits(maps[:, 1], queries)
-    return F.cross_entropy(logits, target_cells(t_pix, *maps.shape[-2:]))
+    return F.cross_entropy(logits, target_cells(t_pix, *maps.shape[-2:], stride))
 
 
 @locks_out_folder  # one training per out folder (aed_tasks.locks)
@@ -195,9 +201,7 @@ def train_localizer(
     infos = [stage_episode(ref, num_stages, "front") for ref in experts]
 
     # model and optimiser
-    config = dataclasses.replace(
-        localizer_cfg or LocalizerConfig.preset(cfg.profile), num_targets=num_stages
-    )
+    config = dataclasses.replace(localizer_cfg or cfg.model_preset(), num_targets=num_stages)
     localizer = TargetLocalizer(config)
     localizer.set_camera(*(torch.from_numpy(m) for m in fixed_camera(infos)))
     start = time.perf_counter()
@@ -223,7 +227,13 @@ def train_localizer(
             **trained_on(experts),
         },
     )
-    resumed = folder.resume(localizer, optimizer) if cfg.resume else None
+
+    def same(ckpt: Checkpoint) -> str | None:
+        if LocalizerConfig.from_dict(ckpt.config) != config:
+            return f"trained with another localizer config ({ckpt.config})"
+        return None  # (fields added since take their defaults)
+
+    resumed = folder.resume(localizer, optimizer, same) if cfg.resume else None
     start_epoch, log = resumed or (0, [])
     if folder.finished(start_epoch, cfg.epochs):
         return folder.final
@@ -265,8 +275,8 @@ def environment_queries(
     localizer: TargetLocalizer,
     demos: Sequence[StageEpisode],
     reader: EpisodeReader,
-) -> torch.Tensor:
-    """The K queries of one environment from its demonstrations (K, D)."""
+) -> StageQueries:
+    """The K stage queries of one environment from its demonstrations."""
     firsts = torch.stack([reader.read(d.ref, np.array([0])).frames[0] for d in demos])
     points = torch.from_numpy(np.stack([d.points for d in demos])).float()
     return localizer.queries(firsts, points)

@@ -81,6 +81,9 @@ class TrainPolicyConfig(TrainingRun, PolicyRecipe):
             raise ValueError(f"workers={self.workers}: must be >= 0")
         self.encoder, self.localizer = Path(self.encoder), Path(self.localizer)
 
+    def model_preset(self) -> PolicyConfig:
+        return POLICIES.preset(self.policy, self.profile)
+
     @classmethod
     def from_preset(
         cls,
@@ -210,7 +213,7 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
     check_task(episodes, cfg.task, cfg.data)
 
     # model, with the scene encoder as its frozen visual head when the config says so
-    policy_cfg = policy_cfg or POLICIES.preset(cfg.policy, cfg.profile)
+    policy_cfg = policy_cfg or cfg.model_preset()
     localizer, located = None, None
     if policy_cfg.localizer is not None:  # its size and stage count are the checkpoint's
         localizer = load_frozen_localizer(cfg.localizer)

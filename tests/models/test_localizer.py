@@ -20,7 +20,7 @@ from aed_models.data import (
 )
 from aed_models.localizer import LocalizerConfig, load_localizer, modeling_localizer
 from aed_models.localizer.modeling_localizer import (
-    STRIDE,
+    StageQueries,
     TargetLocalizer,
     colour_jitter,
     nearest_surface,
@@ -136,9 +136,10 @@ def test_geometry_round_trips():
     logits = torch.full((2, 4, 5), -10.0)
     logits[0, 2, 3] = 10.0
     logits[1, 1, 1] = logits[1, 1, 2] = 10.0  # a tie: the refinement lands between the cells
-    pixels = refined_pixels(logits)
-    assert torch.allclose(pixels[0], torch.tensor([3.5 * STRIDE, 2.5 * STRIDE]))
-    assert torch.allclose(pixels[1], torch.tensor([2.0 * STRIDE, 1.5 * STRIDE]))
+    for stride in (4, 8):
+        pixels = refined_pixels(logits, stride)
+        assert torch.allclose(pixels[0], torch.tensor([3.5 * stride, 2.5 * stride]))
+        assert torch.allclose(pixels[1], torch.tensor([2.0 * stride, 1.5 * stride]))
 
 
 def test_a_match_beside_an_object_reads_the_object_depth():
@@ -161,11 +162,49 @@ def test_locate_reads_the_nearest_surface_in_its_window(monkeypatch):
     u, v = pixel(0.05, 0.05)
     frames[:, 3, v - 3 : v + 3, u - 3 : u + 3] = 1000.0 * (HEIGHT_M - TOP_M) / DEPTH_SCALE_MM
     beside = torch.tensor([[[u + 5.0, float(v)]]])  # two pixels right of the square's edge
-    monkeypatch.setattr(modeling_localizer, "refined_pixels", lambda logits: beside)
+    monkeypatch.setattr(modeling_localizer, "refined_pixels", lambda logits, stride: beside)
+    queries = StageQueries(torch.randn(1, TINY.dim), torch.tensor([TOP_M]))
     for window, height in ((0, 0.0), (4, TOP_M)):
         localizer = camera_localizer(dataclasses.replace(TINY, depth_window=window))
-        point = localizer.locate(frames, torch.randn(1, TINY.dim))
+        point = localizer.locate(frames, queries)
         assert point[0, 0, 2].item() == pytest.approx(height, abs=2e-3)
+
+
+def test_a_target_off_the_seen_surface_is_placed_at_the_demonstrations_height(monkeypatch):
+    """A stage that ends 10 cm above the table (a glass held over its coaster): its pixel's
+    depth is the table's. With a height tolerance the point is where the pixel's ray crosses
+    the demonstrations' height, 10 cm up; one whose depth agrees with that height keeps it."""
+    frames = torch.zeros(1, 4, H, W)
+    frames[:, 3] = 1000.0 * HEIGHT_M / DEPTH_SCALE_MM
+    above = torch.tensor([[0.1, -0.05, 0.1]])  # in mid-air, above the table
+    pixels = camera_localizer().project(above)[None]  # (1, 1, 2)
+    monkeypatch.setattr(modeling_localizer, "refined_pixels", lambda logits, stride: pixels)
+    for tolerance, expected in ((0.0, [0.1 / 0.9, -0.05 / 0.9, 0.0]), (0.03, above[0].tolist())):
+        localizer = camera_localizer(dataclasses.replace(TINY, height_tolerance=tolerance))
+        point = localizer.locate(frames, StageQueries(torch.randn(1, TINY.dim), above[:, 2]))
+        assert torch.allclose(point[0, 0], torch.tensor(expected), atol=1e-4), tolerance
+    on_table = StageQueries(torch.randn(1, TINY.dim), torch.tensor([0.02]))  # within 3 cm
+    localizer = camera_localizer(dataclasses.replace(TINY, height_tolerance=0.03))
+    assert localizer.locate(frames, on_table)[0, 0, 2].item() == pytest.approx(0.0, abs=1e-4)
+
+
+def test_matching_cells_of_four_or_eight_pixels():
+    """The map's cells are `stride` pixels a side; saved localizers (without the field) load
+    with 8; any other stride, or a negative height tolerance, is refused."""
+    for stride in (4, 8):
+        localizer = camera_localizer(dataclasses.replace(TINY, stride=stride))
+        assert localizer.map(torch.zeros(2, 4, H, W)).shape == (
+            2,
+            TINY.dim,
+            H // stride,
+            W // stride,
+        )
+    old = LocalizerConfig.from_dict({"width": 8, "dim": 8, "num_targets": 1, "depth_window": 4})
+    assert (old.stride, old.height_tolerance) == (8, 0.0)
+    with pytest.raises(ValueError, match="stride=6"):
+        LocalizerConfig(stride=6)
+    with pytest.raises(ValueError, match="height_tolerance=-0.1"):
+        LocalizerConfig(height_tolerance=-0.1)
 
 
 def test_stage_end_points_are_where_each_stage_ended():
@@ -254,6 +293,11 @@ def test_localizer_training_resumes_to_the_same_weights(collections, tmp_path):
     resumed = train_localizer(localizer_config(base, tmp_path / "split", epochs=2, updates=5), TINY)
     a, b = load_localizer(whole).state_dict(), load_localizer(resumed).state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a)
+    with pytest.raises(ValueError, match="another localizer config"):  # same weights' shapes
+        train_localizer(
+            localizer_config(base, tmp_path / "split", epochs=3, updates=5),
+            dataclasses.replace(TINY, stride=4),
+        )
     with pytest.raises(ValueError, match="profile='paper'"):
         localizer_config(base, tmp_path / "x", profile="paper")
 
