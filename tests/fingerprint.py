@@ -281,6 +281,7 @@ def tiny_policy_file(root: Path) -> Path:
         "mini",
         visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
         localizer=None,
+        subgoal_head="linear",  # the pointer head needs a localizer
         action_chunk=1,  # the actor of then
     )
     path = root / "tiny_policy" / "policy.pt"

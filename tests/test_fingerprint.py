@@ -29,6 +29,11 @@ CHUNK = (
     "the mini DCT and SCAN predict the next 10 actions at every step and act on their temporal "
     "ensemble (ACT's action chunking); NaiveDC and the paper's policies predict one"
 )
+POINTER = (
+    "the mini policies' stage-target head chooses among the offsets to the located targets "
+    "(plus a linear residual), and its prediction reaches the position action through a learned "
+    "per-axis gain: the linear head's actor ignored the located x"
+)
 MINI_ENVS = (
     "the mini protocol is #20's recipe: up to 23 training + 4 calibration base environments and "
     "up to 18 novel ones, a smaller catalogue giving all it has"
@@ -117,6 +122,16 @@ INTENDED = [
             if profile == "mini"
             else None,
             LOCALIZER,
+        )
+        for name in ("naive_dc", "dct", "scan")
+        for profile in fingerprint.PROFILES
+    ),
+    *(
+        (
+            ("recipes", f"model/{name}/{profile}", "subgoal_head"),
+            ABSENT,
+            "pointer" if profile == "mini" else "linear",
+            POINTER,
         )
         for name in ("naive_dc", "dct", "scan")
         for profile in fingerprint.PROFILES

@@ -32,6 +32,7 @@ def policy():
         "mini",
         visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
         localizer=None,
+        subgoal_head="linear",  # the pointer head needs a localizer
     )
     return make_policy("scan", config).eval()
 

@@ -101,6 +101,7 @@ def setting(tmp_path_factory) -> dict:
             "mini",
             visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
             localizer=None,
+            subgoal_head="linear",  # the pointer head needs a localizer
         ),
     )
     layout.policy(TASK, "naive_dc").parent.mkdir(parents=True)

@@ -33,6 +33,7 @@ def setting(tmp_path_factory) -> dict:
         "mini",
         visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
         localizer=None,
+        subgoal_head="linear",  # the pointer head needs a localizer
     )
     checkpoint = root / "policy.pt"
     save_policy(checkpoint, make_policy("naive_dc", config).eval())

@@ -90,6 +90,31 @@ class Actor(nn.Module):
         return self.pos(h).unflatten(-1, (self.chunk, 3)), self.grip(h)[..., None]
 
 
+class PointerSubgoalHead(nn.Module):
+    """Stage-target head that points: a softmax choice among the offsets to the K located
+    points (MLP [in, 64, K] on the actor's input) plus a linear residual that starts at 0.
+
+    A linear map from [f_h, f_zeta, offsets] may lean on what TCP and time already explain and
+    ignore a located coordinate; a choice among the offsets carries each one through unscaled
+    and only has to learn which stage it is in."""
+
+    def __init__(self, in_dim: int, num_targets: int, hidden: int = 64):
+        super().__init__()
+        self.num_targets = num_targets
+        self.select = nn.Sequential(
+            nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, num_targets)
+        )
+        self.residual = nn.Linear(in_dim, 3)
+        nn.init.zeros_(self.residual.weight)
+        nn.init.zeros_(self.residual.bias)
+
+    def forward(self, actor_input: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
+        """actor_input (..., in_dim), offsets (..., 3K) -> predicted offset (..., 3)."""
+        weights = torch.softmax(self.select(actor_input), dim=-1)
+        points = offsets.unflatten(-1, (self.num_targets, 3))
+        return (weights[..., None] * points).sum(-2) + self.residual(actor_input)
+
+
 def thin_sequences(
     frames: torch.Tensor, mask: torch.Tensor, proprio: torch.Tensor | None, limit: int
 ):
@@ -152,11 +177,14 @@ class DCPolicy(nn.Module):
 
             self.localizer = TargetLocalizer(config.localizer)
             located_dim = 3 * config.localizer.num_targets
-        self.subgoal_head = (
-            nn.Linear(history_dim + task_dim + located_dim, 3)
-            if config.subgoal_weight > 0
-            else None
-        )
+        self.subgoal_head = None
+        self.subgoal_gain = None  # pointer head: per-axis gain from the predicted offset to pos
+        if config.subgoal_weight > 0 and config.subgoal_head == "pointer":
+            in_dim = history_dim + task_dim + located_dim
+            self.subgoal_head = PointerSubgoalHead(in_dim, config.localizer.num_targets)
+            self.subgoal_gain = nn.Parameter(torch.zeros(3))
+        elif config.subgoal_weight > 0:
+            self.subgoal_head = nn.Linear(history_dim + task_dim + located_dim, 3)
         self.actor = Actor(
             history_dim + task_dim + located_dim + (3 if self.subgoal_head is not None else 0),
             config.actor_hidden,
@@ -346,13 +374,18 @@ class DCPolicy(nn.Module):
         """[f_h, f_zeta (, offsets to the located points)] -> (pos (..., C, 3), gripper
         (..., C, 1) for the C = `action_chunk` steps from this one, subgoal offset or None).
         With a subgoal head, the actor also reads the predicted offset: moving toward a target
-        it was told is an easy map."""
+        it was told is an easy map. The pointer head's offset also reaches every step of the
+        position chunk through a learned per-axis gain, one weight from the action."""
         parts = [history, task] if offsets is None else [history, task, offsets]
         actor_input = torch.cat(parts, dim=-1)
         if self.subgoal_head is None:
             return (*self.actor(actor_input), None)
-        subgoal = self.subgoal_head(actor_input)
-        return (*self.actor(torch.cat([actor_input, subgoal], dim=-1)), subgoal)
+        if self.subgoal_gain is None:
+            subgoal = self.subgoal_head(actor_input)
+            return (*self.actor(torch.cat([actor_input, subgoal], dim=-1)), subgoal)
+        subgoal = self.subgoal_head(actor_input, offsets)
+        pos, grip = self.actor(torch.cat([actor_input, subgoal], dim=-1))
+        return pos + (self.subgoal_gain * subgoal)[..., None, :], grip, subgoal
 
     def loss(self, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
         """Behaviour cloning on one `EnvironmentIterations` item (its rollouts and demos).

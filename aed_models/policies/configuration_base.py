@@ -34,6 +34,10 @@ class PolicyConfig:
             ends (`aed_models.data.stage_subgoals`, from the stored TCP poses), and the actor
             reads that prediction: behaviour cloning alone did not teach the small CNN where
             the target is (on under `mini`; the README's "Measured here" says how much it helps).
+        subgoal_head: `linear`, that head; or `pointer` (needs a localizer): a softmax choice
+            among the offsets to the located points plus a linear residual, whose prediction
+            also enters the position action through a learned per-axis gain (under `mini`,
+            where the actor otherwise ignored the located coordinates).
         frozen_encoder: the visual head is the task's scene encoder (`aed train-encoder`, trained
             to say where things are), frozen; training reads its cached per-frame features. The
             paper trains its heads end to end (off under `paper`, on under `mini`).
@@ -68,6 +72,7 @@ class PolicyConfig:
     proprio: bool = False
     demo_frames: int = 0
     subgoal_weight: float = 0.0
+    subgoal_head: Literal["linear", "pointer"] = "linear"
     frozen_encoder: bool = False
     localizer: LocalizerConfig | None = None
     action_chunk: int = 1
@@ -93,6 +98,12 @@ class PolicyConfig:
                 "subgoal_weight > 0 needs proprio=True "
                 "(the offset is from the TCP the policy reads)"
             )
+        if self.subgoal_head not in ("linear", "pointer"):
+            raise ValueError(f"subgoal_head={self.subgoal_head!r}: linear or pointer")
+        if self.subgoal_head == "pointer" and self.localizer is None:
+            raise ValueError(
+                "subgoal_head='pointer' needs a localizer (it points at the located targets)"
+            )
         if self.localizer is not None and not self.proprio:
             raise ValueError(
                 "localizer needs proprio=True (the policy reads the offsets from the TCP)"
@@ -108,7 +119,7 @@ class PolicyConfig:
     def preset(cls: type[C], profile: str) -> C:
         """The sizes of a profile: `paper` the paper's (ResNet18 head, RGB-D only); `mini` and
         `demo` CPU-sized (the task's frozen scene encoder as the visual head, proprioception, a
-        stage-target head, the task's target localizer, the class's action chunks)."""
+        pointer stage-target head, the task's target localizer, the class's action chunks)."""
         if check_profile(profile) == "paper":
             return cls(visual=VisualHeadConfig(arch="resnet18", out_dim=256, dropout=0.5))
         small = VisualHeadConfig(arch="small_cnn", out_dim=256, dropout=0.0, width=32)
@@ -116,6 +127,7 @@ class PolicyConfig:
             visual=small,
             proprio=True,
             subgoal_weight=1.0,
+            subgoal_head="pointer",
             frozen_encoder=True,
             localizer=LocalizerConfig.preset(profile),
             action_chunk=cls.mini_action_chunk,

@@ -440,6 +440,7 @@ def tiny_policy(tmp_path_factory):
         "mini",
         visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
         localizer=None,
+        subgoal_head="linear",  # the pointer head needs a localizer
     )
     path = tmp_path_factory.mktemp("policy") / "policy.pt"
     save_policy(path, make_policy("naive_dc", config).eval())

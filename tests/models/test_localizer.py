@@ -326,6 +326,9 @@ def test_online_actions_equal_batched_with_a_localizer(name, collections):
     policy = make_policy(name, policy_config(name))
     policy.localizer.set_camera(torch.from_numpy(INTRINSIC), torch.from_numpy(EXTRINSIC))
     policy.set_action_stats(torch.randn(50, 4) * 0.2)
+    with torch.no_grad():  # the pointer head's paths, which start at 0, open
+        policy.subgoal_gain.fill_(0.5)
+        policy.subgoal_head.residual.weight.normal_(0, 0.1)
     policy.eval()
     demos = episode_batch(base, 0, "demo", 3)
     rollout = episode_batch(base, 0, "agent_success", 1)
@@ -383,12 +386,12 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
     gain = diagnosis["follow_gain"]
     assert (gain["shift_cm"], gain["steps"]) == (5.0, 30)
     assert all(isinstance(gain[axis], float) and np.isfinite(gain[axis]) for axis in "xy"), gain
-    # an actor and a stage-target head that ignore the located points do not follow them at all
+    # an actor that reads neither the located points nor the pointer head's offset does not
+    # follow them at all
     checkpoint = torch.load(cfg.out / "policy.pt", weights_only=True)
-    state, width = checkpoint["state_dict"], 3 * policy.config.localizer.num_targets
-    start = policy.history_dim + policy.task_dim
-    for key in ("actor.body.0.weight", "subgoal_head.weight"):
-        state[key][:, start : start + width] = 0
+    state, start = checkpoint["state_dict"], policy.history_dim + policy.task_dim
+    state["actor.body.0.weight"][:, start:] = 0  # the offsets, then the predicted one
+    state["subgoal_gain"].zero_()
     torch.save(checkpoint, tmp_path / "blind.pt")
     blind = load_script("rollout_localization").main(
         load_script("rollout_localization").Config(

@@ -43,6 +43,7 @@ def tiny_config(name: str, profile: str = "mini"):
         actor_hidden=(16, 8),
         frozen_encoder=False,
         localizer=None,
+        subgoal_head="linear",  # the pointer head points at located targets
         **TINY[name],
     )
 
@@ -497,6 +498,25 @@ def test_stage_subgoals_are_where_each_stage_ends():
         POLICIES.preset("naive_dc", "mini", proprio=False, subgoal_weight=1.0)
     with pytest.raises(ValueError, match="localizer needs proprio"):
         POLICIES.preset("naive_dc", "mini", proprio=False, subgoal_weight=0.0)
+
+
+def test_the_pointer_head_chooses_among_the_located_offsets():
+    from aed_models.policies.base import PointerSubgoalHead
+
+    head = PointerSubgoalHead(in_dim=10, num_targets=2)
+    offsets = torch.tensor([[1.0, 2.0, 3.0, -4.0, -5.0, -6.0]])
+    with torch.no_grad():
+        head.select[-1].weight.zero_()
+        head.select[-1].bias.copy_(torch.tensor([0.0, 50.0]))  # the second stage's point
+    assert torch.allclose(head(torch.randn(1, 10), offsets), offsets[:, 3:])
+    with torch.no_grad():
+        head.select[-1].bias.zero_()  # undecided: halfway, whatever the input
+    assert torch.allclose(head(torch.randn(1, 10), offsets), torch.tensor([[-1.5, -1.5, -1.5]]))
+    assert POLICIES.preset("scan", "mini").subgoal_head == "pointer"
+    with pytest.raises(ValueError, match="needs a localizer"):
+        POLICIES.preset("scan", "mini", localizer=None)
+    with pytest.raises(ValueError, match="linear or pointer"):
+        POLICIES.preset("scan", "mini", subgoal_head="mlp")
 
 
 def test_diagnostic_scripts_run_on_a_collection(collection):
