@@ -250,7 +250,9 @@ class TrainingFolder:
     """The checkpoints of one training: `<out>/last.pt`, `<out>/<final>`, `<out>/train_log.json`.
 
     `model_config` and `provenance` (the training config as `train_config`, the data key, the
-    environments...) go into every checkpoint; `family` and `name` type them.
+    environments...) go into every checkpoint; `family` and `name` type them. `parse_config`
+    reads a stored model config (fields added since take their defaults): a `last.pt` whose
+    config parses to another is not resumed.
     """
 
     out: Path
@@ -259,6 +261,7 @@ class TrainingFolder:
     name: str
     model_config: dict[str, Any]
     provenance: dict[str, Any]
+    parse_config: Callable[[dict[str, Any]], Any]
 
     @property
     def last(self) -> Path:
@@ -276,14 +279,18 @@ class TrainingFolder:
     ) -> tuple[int, list[dict[str, Any]]] | None:
         """Restore model, optimizer and torch RNG from `last.pt` if there is one; returns the
         epochs done and the log (None: nothing to resume). Refuses one of another training:
-        other settings or data, or what `same(checkpoint)` names (a message, None if alike)."""
+        other settings, data or model config, or what `same(checkpoint)` names (a message,
+        None if alike)."""
         if not self.last.exists():
             return None
         ckpt = load_checkpoint(self.last, family=self.family, name=self.name)
         check_same_training(
             self.last, ckpt.extra, self.provenance["train_config"], self.provenance["data_key"]
         )
-        problem = same(ckpt) if same is not None else None
+        if self.parse_config(ckpt.config) != self.parse_config(self.model_config):
+            problem = f"trained with another {self.name} {self.family} config ({ckpt.config})"
+        else:
+            problem = same(ckpt) if same is not None else None
         if problem:
             raise ValueError(
                 f"{self.last}: {problem}; pass --no-resume to start over, or another --out"

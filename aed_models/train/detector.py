@@ -230,6 +230,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
         FAMILY,
         cfg.detector,
         detector.config.to_dict(),
+        parse_config=lambda stored: DETECTORS.config_from_dict(cfg.detector, stored),
         provenance={
             "task": cfg.task,
             "profile": cfg.profile,
@@ -244,9 +245,7 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
     def same(ckpt: Checkpoint) -> str | None:
         if ckpt.extra.get("policy_sha256") != policy_sha:
             return f"trained on policy {ckpt.extra.get('policy_sha256')}, not {policy_sha}"
-        if DETECTORS.config_from_dict(cfg.detector, ckpt.config) != detector.config:
-            return f"trained with another {cfg.detector} config ({ckpt.config})"
-        return None  # (fields added since take their defaults)
+        return None
 
     resumed = folder.resume(detector, optimizer, same) if cfg.resume else None
     start_epoch, log = resumed or (0, [])

@@ -26,7 +26,6 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from aed_models.checkpoint import Checkpoint
 from aed_models.data import EpisodeReader, load_episodes, scene_state, scene_state_names
 from aed_models.encoder import FAMILY, NAME, EncoderConfig, EncoderRecipe
 from aed_models.encoder.modeling_encoder import SceneEncoder
@@ -161,6 +160,7 @@ def train_encoder(cfg: TrainEncoderConfig, encoder_cfg: EncoderConfig | None = N
         FAMILY,
         NAME,
         config.to_dict(),
+        parse_config=EncoderConfig.from_dict,
         provenance={
             "train_config": config_record(cfg),
             "data_key": data_key(episodes),
@@ -168,12 +168,7 @@ def train_encoder(cfg: TrainEncoderConfig, encoder_cfg: EncoderConfig | None = N
         },
     )
 
-    def same(ckpt: Checkpoint) -> str | None:
-        if EncoderConfig.from_dict(ckpt.config) != config:
-            return f"trained with another scene encoder config ({ckpt.config})"
-        return None  # (fields added since take their defaults)
-
-    resumed = folder.resume(encoder, optimizer, same) if cfg.resume else None
+    resumed = folder.resume(encoder, optimizer) if cfg.resume else None
     if resumed is None:
         encoder.set_state_stats(torch.from_numpy(np.concatenate(data.states)))
     start_epoch, log = resumed or (0, [])

@@ -29,7 +29,6 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from aed_models.checkpoint import Checkpoint
 from aed_models.data import EpisodeReader, load_episodes, stage_end_points, stage_subgoals
 from aed_models.localizer import FAMILY, NAME, LocalizerConfig, LocalizerRecipe
 from aed_models.localizer.modeling_localizer import (
@@ -221,6 +220,7 @@ def train_localizer(
         FAMILY,
         NAME,
         config.to_dict(),
+        parse_config=LocalizerConfig.from_dict,
         provenance={
             "train_config": config_record(cfg),
             "data_key": data_key(experts),
@@ -228,12 +228,7 @@ def train_localizer(
         },
     )
 
-    def same(ckpt: Checkpoint) -> str | None:
-        if LocalizerConfig.from_dict(ckpt.config) != config:
-            return f"trained with another localizer config ({ckpt.config})"
-        return None  # (fields added since take their defaults)
-
-    resumed = folder.resume(localizer, optimizer, same) if cfg.resume else None
+    resumed = folder.resume(localizer, optimizer) if cfg.resume else None
     start_epoch, log = resumed or (0, [])
     if folder.finished(start_epoch, cfg.epochs):
         return folder.final

@@ -245,6 +245,7 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
         FAMILY,
         cfg.policy,
         policy.config.to_dict(),
+        parse_config=type(policy.config).from_dict,
         provenance={
             "train_config": config_record(cfg),
             "data_key": data_key(episodes),
@@ -274,8 +275,6 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
             return f"trained on another scene encoder than {cfg.encoder}"
         if ckpt.extra.get("localizer_sha256") != (localizer and localizer.sha256):
             return f"trained with another target localizer than {cfg.localizer}"
-        if ckpt.config != policy.config.to_dict():
-            return f"trained with another {cfg.policy} config ({ckpt.config})"
         return None
 
     resumed = folder.resume(policy, optimizer, same) if cfg.resume else None

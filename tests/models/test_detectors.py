@@ -486,7 +486,7 @@ def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
             dataclasses.replace(cfg2, task="PressButton", out=tmp_path / "other"), config
         )
     other = make_detector("lstm_ed", **{**TINY["lstm_ed"], "head_dim": 9}).config
-    with pytest.raises(ValueError, match="another lstm_ed config"):
+    with pytest.raises(ValueError, match="another lstm_ed detector config"):
         train_detector(
             TrainDetectorConfig.from_preset(
                 task="PickPlace",

@@ -385,7 +385,7 @@ def test_resume_gives_the_same_weights(collection, tmp_path):
         train_policy(
             train_config(collection, tmp_path / "x", task="PickPlace", epochs=1), tiny_config("dct")
         )
-    with pytest.raises(ValueError, match="last.pt: trained with another dct config"):
+    with pytest.raises(ValueError, match="last.pt: trained with another dct policy config"):
         train_policy(
             train_config(collection, tmp_path / "split", policy="dct", epochs=4, num_envs=2), other
         )
