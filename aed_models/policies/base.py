@@ -179,12 +179,12 @@ class DCPolicy(nn.Module):
             located_dim = 3 * config.localizer.num_targets
         self.subgoal_head = None
         self.subgoal_gain = None  # pointer head: per-axis gain from the predicted offset to pos
+        head_in = history_dim + task_dim + located_dim
         if config.subgoal_weight > 0 and config.subgoal_head == "pointer":
-            in_dim = history_dim + task_dim + located_dim
-            self.subgoal_head = PointerSubgoalHead(in_dim, config.localizer.num_targets)
+            self.subgoal_head = PointerSubgoalHead(head_in, config.localizer.num_targets)
             self.subgoal_gain = nn.Parameter(torch.zeros(3))
         elif config.subgoal_weight > 0:
-            self.subgoal_head = nn.Linear(history_dim + task_dim + located_dim, 3)
+            self.subgoal_head = nn.Linear(head_in, 3)
         self.actor = Actor(
             history_dim + task_dim + located_dim + (3 if self.subgoal_head is not None else 0),
             config.actor_hidden,
@@ -380,12 +380,14 @@ class DCPolicy(nn.Module):
         actor_input = torch.cat(parts, dim=-1)
         if self.subgoal_head is None:
             return (*self.actor(actor_input), None)
-        if self.subgoal_gain is None:
+        if self.subgoal_gain is None:  # the linear head
             subgoal = self.subgoal_head(actor_input)
-            return (*self.actor(torch.cat([actor_input, subgoal], dim=-1)), subgoal)
-        subgoal = self.subgoal_head(actor_input, offsets)
+        else:
+            subgoal = self.subgoal_head(actor_input, offsets)
         pos, grip = self.actor(torch.cat([actor_input, subgoal], dim=-1))
-        return pos + (self.subgoal_gain * subgoal)[..., None, :], grip, subgoal
+        if self.subgoal_gain is not None:
+            pos = pos + (self.subgoal_gain * subgoal)[..., None, :]
+        return pos, grip, subgoal
 
     def loss(self, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
         """Behaviour cloning on one `EnvironmentIterations` item (its rollouts and demos).

@@ -293,9 +293,8 @@ def test_localizer_training_resumes_to_the_same_weights(collections, tmp_path):
     resumed = train_localizer(localizer_config(base, tmp_path / "split", epochs=2, updates=5), TINY)
     a, b = load_localizer(whole).state_dict(), load_localizer(resumed).state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a)
-    with pytest.raises(
-        ValueError, match="another demo_matching localizer config"
-    ):  # same weights' shapes
+    same_shapes = "another demo_matching localizer config"  # the weights' shapes are alike
+    with pytest.raises(ValueError, match=same_shapes):
         train_localizer(
             localizer_config(base, tmp_path / "split", epochs=3, updates=5),
             dataclasses.replace(TINY, stride=4),
