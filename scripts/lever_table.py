@@ -19,17 +19,15 @@ from __future__ import annotations
 import logging
 import shlex
 import sys
-from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 import tyro
 
 from aed_eval.metrics import rate_interval
 from aed_eval.results import write_result
-from aed_models.train.common import select_successes, task_episodes
+from aed_models.train.policy import training_summary
 from aed_tasks import trajectory
 
 logger = logging.getLogger("lever_table")
@@ -66,25 +64,7 @@ def training(checkpoint: Path) -> dict:
     """What a checkpoint trained on and how its action loss moved (first and last 5 epochs)."""
     if not checkpoint.is_file():
         raise SystemExit(f"{checkpoint}: no such checkpoint")
-    extra = torch.load(checkpoint, weights_only=True, map_location="cpu")["extra"]
-    cfg, log = extra["train_config"], extra["log"]
-    episodes = select_successes(
-        task_episodes(Path(cfg["data"]), cfg["num_envs"]), cfg.get("num_successes", 0)
-    )
-    per_env = Counter(e.env_index for e in episodes if e.role == "agent_success")
-    first, last = log[: min(5, len(log))], log[-min(5, len(log)) :]
-    return {
-        "policy": cfg["policy"],
-        "seed": cfg["seed"],
-        "train_envs": len(extra.get("train_envs", [])),
-        "successes_per_env": sorted(set(per_env.values())),
-        "demos_per_env": max(Counter(e.env_index for e in episodes if e.role == "demo").values()),
-        "epochs": len(log),
-        "updates": len(log) * len(extra.get("train_envs", [])),
-        "train_seconds": round(sum(e["seconds"] for e in log), 1),
-        "pos_mse_first": float(np.mean([e["pos_mse"] for e in first])),
-        "pos_mse_last": float(np.mean([e["pos_mse"] for e in last])),
-    }
+    return training_summary(checkpoint)
 
 
 def record(label: str, checkpoint: Path, rollouts: Path, base: dict) -> dict:

@@ -25,6 +25,7 @@ import tyro
 from aed_eval.metrics import rate_interval
 from aed_eval.results import write_result
 from aed_models.layout import RunLayout
+from aed_models.train.policy import training_summary
 from aed_tasks import trajectory
 
 logger = logging.getLogger("policy_table")
@@ -51,20 +52,14 @@ class Config:
     """The results record (JSON); its Markdown table goes beside it (.md)."""
 
 
-def training(checkpoint: Path) -> dict:
-    """What a policy checkpoint says of its training: data, time, first and last losses."""
-    saved = torch.load(checkpoint, weights_only=True, map_location="cpu")
-    extra, log = saved["extra"], saved["extra"]["log"]
-    first, last = log[: min(5, len(log))], log[-min(5, len(log)) :]
-    return {
-        "train_envs": len(extra.get("train_envs", [])),
-        "action_chunk": saved["config"].get("action_chunk", 1),
-        "epochs": len(log),
-        "train_seconds": round(sum(e["seconds"] for e in log), 1),
-        "pos_mse_first": float(np.mean([e["pos_mse"] for e in first])),
-        "pos_mse_last": float(np.mean([e["pos_mse"] for e in last])),
-        "grip_acc_last": float(np.mean([e["grip_acc"] for e in last])),
-    }
+def shared_seconds(layout: RunLayout, task: str) -> dict:
+    """The epochs' seconds of the models every policy of the task reads (trained once)."""
+    seconds = {}
+    for name, path in (("encoder", layout.encoder(task)), ("localizer", layout.localizer(task))):
+        if path.is_file():
+            log = torch.load(path, weights_only=True, map_location="cpu")["extra"]["log"]
+            seconds[f"{name}_seconds"] = round(sum(e["seconds"] for e in log), 1)
+    return seconds
 
 
 def row(layout: RunLayout, task: str, policy: str) -> dict | None:
@@ -84,7 +79,8 @@ def row(layout: RunLayout, task: str, policy: str) -> dict | None:
     return {
         "task": task,
         "policy": policy,
-        **training(checkpoint),
+        **training_summary(checkpoint),
+        **shared_seconds(layout, task),
         "collection": counts,
         "rollouts": len(outcomes),
         "successes": int(outcomes.sum()),

@@ -124,7 +124,8 @@ def test_policy_table_keeps_the_rows_of_tasks_measured_elsewhere(tmp_path, monke
     older = [{**base, "task": "PressButton", "policy": p} for p in ("naive_dc", "scan")]
     out = tmp_path / "policies.json"
     write_result(out, {"kind": "policy_table", "command": "python old.py", "records": older})
-    measured = {"task": "PickPlace", "policy": "scan"}
+    measured = {"task": "PickPlace", "policy": "scan", "action_chunk": 10, "own_pos_mse_last": 0.2}
+    measured |= {"demos_per_env": 5, "successes_per_env": [10], "localizer_seconds": 600.0}
     monkeypatch.setattr(script, "row", lambda layout, t, p: {**base, **measured})
     monkeypatch.setattr("sys.argv", ["scripts/policy_table.py", "--tasks", "PickPlace"])
     script.main(script.Config(runs=tmp_path, tasks=("PickPlace",), policies=("scan",), out=out))
@@ -136,6 +137,10 @@ def test_policy_table_keeps_the_rows_of_tasks_measured_elsewhere(tmp_path, monke
     ]
     table = out.with_suffix(".md").read_text()
     assert "`python old.py` (PressButton)" in table
+    older_row = "| PressButton | scan | 23 envs | 100 epochs, chunks of 1, 1.0 min | 0.80 -> 0.30 |"
+    assert older_row in table
+    assert "| PickPlace | scan | 23 x (5 + 10) | 100 epochs, chunks of 10, 1.0 min " in table
+    assert "(task's localizer 10 min) | 0.80 -> 0.30 (0.20) |" in table
     assert "`python scripts/policy_table.py --tasks PickPlace` (PickPlace)" in table
     (tmp_path / "other.json").write_text(json.dumps({"kind": "lever_table", "records": []}))
     with pytest.raises(ValueError, match="not a policy table"):

@@ -210,3 +210,19 @@ def test_resuming_from_a_crafted_pickle_is_one_line_and_status_2(command, tmp_pa
     errors = [line for line in result.stderr.splitlines() if not line.startswith("INFO ")]
     assert len(errors) == 1 and f"{out / 'last.pt'}: refused: it holds objects" in errors[0]
     assert not marker.exists() and not (out / "policy.pt").exists()
+
+
+def test_a_policy_checkpoint_says_what_it_trained_on(command, tmp_path):
+    """`training_summary`, the policy tables' columns: data per environment, epochs, cost."""
+    from aed_models.train.policy import training_summary
+
+    out = tmp_path / "policy"
+    args = [*command("policy", out), "--epochs", "2"]
+    result = subprocess.run(args, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    summary = training_summary(out / "policy.pt")
+    assert summary["policy"] == "naive_dc" and summary["train_envs"] == 2
+    assert summary["demos_per_env"] == 2 and summary["successes_per_env"] == [2]
+    assert summary["epochs"] == 2 and summary["updates"] == 4 and summary["train_seconds"] > 0
+    assert summary["action_chunk"] == 1
+    assert summary["own_pos_mse_last"] == summary["pos_mse_last"] > 0

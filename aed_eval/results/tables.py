@@ -18,22 +18,50 @@ def _rate(r: dict[str, Any]) -> str:
     )
 
 
+def _data(r: dict[str, Any]) -> str:
+    """Training environments x (demonstrations + agent successes) each, where recorded."""
+    if "demos_per_env" not in r:  # rows recorded before the counts were
+        return f"{r['train_envs']} envs"
+    successes = "-".join(str(n) for n in r["successes_per_env"])
+    return f"{r['train_envs']} x ({r['demos_per_env']} + {successes})"
+
+
+def _cost(r: dict[str, Any]) -> str:
+    """The policy's epochs and their time, then what its task trained once for every policy."""
+    shared = [
+        f"{name} {r[f'{name}_seconds'] / 60:.0f} min"
+        for name in ("encoder", "localizer")
+        if f"{name}_seconds" in r
+    ]
+    return (
+        f"{r['epochs']} epochs, chunks of {r['action_chunk']}, {r['train_seconds'] / 60:.1f} min"
+        + (f" (task's {', '.join(shared)})" if shared else "")
+    )
+
+
+def _loss(r: dict[str, Any]) -> str:
+    chunked = r.get("action_chunk", 1) > 1 and "own_pos_mse_last" in r
+    own = f" ({r['own_pos_mse_last']:.2f})" if chunked else ""
+    return f"{r['pos_mse_first']:.2f} -> {r['pos_mse_last']:.2f}{own}"
+
+
 @renderer("policy_table")
 def policy_table(record: dict[str, Any], stem: Path) -> list[Path]:
-    """One row per (task, policy): training, action loss, novel success rate, the paper's."""
+    """One row per (task, policy): training data and cost, action loss, novel success rate,
+    the paper's."""
     lines = [
-        "| task | policy | training | action loss (share of variance; of the whole chunk where "
-        "chunked), first -> last 5 epochs | novel success rate [95%] | paper |",
-        "|---|---|---|---|---|---|",
+        "| task | policy | training data: envs x (demos + agent successes) | training "
+        "| action loss (share of variance), first -> last 5 epochs (own action's, chunked) "
+        "| novel success rate [95%] | paper |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in record["records"]:
         paper = (
             "" if r["paper_success"] is None else "{:.2f} +- {:.2f}%".format(*r["paper_success"])
         )
         lines.append(
-            f"| {r['task']} | {r['policy']} | {r['train_envs']} envs, {r['epochs']} epochs, "
-            f"chunks of {r['action_chunk']}, {r['train_seconds'] / 60:.0f} min "
-            f"| {r['pos_mse_first']:.2f} -> {r['pos_mse_last']:.2f} | {_rate(r)} | {paper} |"
+            f"| {r['task']} | {r['policy']} | {_data(r)} | {_cost(r)} | {_loss(r)} "
+            f"| {_rate(r)} | {paper} |"
         )
     commands: dict[str, list[str]] = {}
     for r in record["records"]:

@@ -301,3 +301,36 @@ def train_policy(cfg: TrainPolicyConfig, policy_cfg: PolicyConfig | None = None)
         folder.save_epoch(policy, optimizer, epoch + 1, log)
 
     return folder.save_final(policy, cfg.epochs, log)
+
+
+def training_summary(checkpoint: Path) -> dict[str, Any]:
+    """What a policy checkpoint trained on and what it cost, for the tables of `results/`:
+    environments, demonstrations and agent successes per environment, epochs and updates,
+    the epochs' seconds, and the action loss (share of the actions' variance) over its first
+    and last 5 epochs, of the whole chunk and of the step's own action."""
+    saved = torch.load(checkpoint, weights_only=True, map_location="cpu")
+    extra, log = saved["extra"], saved["extra"]["log"]
+    cfg = extra["train_config"]
+    episodes = select_successes(
+        task_episodes(Path(cfg["data"]), cfg["num_envs"]), cfg.get("num_successes", 0)
+    )
+    per_env = {role: defaultdict(int) for role in ("demo", "agent_success")}
+    for e in episodes:
+        if e.role in per_env:
+            per_env[e.role][e.env_index] += 1
+    first, last = log[: min(5, len(log))], log[-min(5, len(log)) :]
+    return {
+        "policy": cfg["policy"],
+        "seed": cfg["seed"],
+        "train_envs": len(extra.get("train_envs", [])),
+        "demos_per_env": max(per_env["demo"].values(), default=0),
+        "successes_per_env": sorted(set(per_env["agent_success"].values())),
+        "action_chunk": saved["config"].get("action_chunk", 1),
+        "epochs": len(log),
+        "updates": len(log) * len(extra.get("train_envs", [])),
+        "train_seconds": round(sum(e["seconds"] for e in log), 1),
+        "pos_mse_first": float(np.mean([e["pos_mse"] for e in first])),
+        "pos_mse_last": float(np.mean([e["pos_mse"] for e in last])),
+        "own_pos_mse_last": float(np.mean([e.get("own_pos_mse", e["pos_mse"]) for e in last])),
+        "grip_acc_last": float(np.mean([e["grip_acc"] for e in last])),
+    }
