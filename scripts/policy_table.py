@@ -19,11 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 import tyro
 
 from aed_eval.metrics import rate_interval
 from aed_eval.results import write_result
+from aed_models.checkpoint import load_checkpoint
 from aed_models.layout import RunLayout
 from aed_models.train.policy import training_summary
 from aed_tasks import trajectory
@@ -55,10 +55,10 @@ class Config:
 def shared_seconds(layout: RunLayout, task: str) -> dict:
     """The epochs' seconds of the models every policy of the task reads (trained once)."""
     seconds = {}
-    for name, path in (("encoder", layout.encoder(task)), ("localizer", layout.localizer(task))):
+    for family, path in (("encoder", layout.encoder(task)), ("localizer", layout.localizer(task))):
         if path.is_file():
-            log = torch.load(path, weights_only=True, map_location="cpu")["extra"]["log"]
-            seconds[f"{name}_seconds"] = round(sum(e["seconds"] for e in log), 1)
+            log = load_checkpoint(path, family=family).extra["log"]
+            seconds[f"{family}_seconds"] = round(sum(e["seconds"] for e in log), 1)
     return seconds
 
 

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from aed_models.checkpoint import Checkpoint
+from aed_models.checkpoint import Checkpoint, load_checkpoint
 from aed_models.data import Composition, EnvironmentIterations
 from aed_models.layout import RunLayout
 from aed_models.policies import FAMILY, POLICIES, PolicyConfig, make_policy
@@ -308,8 +308,8 @@ def training_summary(checkpoint: Path) -> dict[str, Any]:
     environments, demonstrations and agent successes per environment, epochs and updates,
     the epochs' seconds, and the action loss (share of the actions' variance) over its first
     and last 5 epochs, of the whole chunk and of the step's own action."""
-    saved = torch.load(checkpoint, weights_only=True, map_location="cpu")
-    extra, log = saved["extra"], saved["extra"]["log"]
+    saved = load_checkpoint(checkpoint, family=FAMILY)
+    extra, log = saved.extra, saved.extra["log"]
     cfg = extra["train_config"]
     episodes = select_successes(
         task_episodes(Path(cfg["data"]), cfg["num_envs"]), cfg.get("num_successes", 0)
@@ -325,7 +325,7 @@ def training_summary(checkpoint: Path) -> dict[str, Any]:
         "train_envs": len(extra.get("train_envs", [])),
         "demos_per_env": max(per_env["demo"].values(), default=0),
         "successes_per_env": sorted(set(per_env["agent_success"].values())),
-        "action_chunk": saved["config"].get("action_chunk", 1),
+        "action_chunk": saved.config.get("action_chunk", 1),
         "epochs": len(log),
         "updates": len(log) * len(extra.get("train_envs", [])),
         "train_seconds": round(sum(e["seconds"] for e in log), 1),
