@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from aed_eval import paper
 from aed_eval.scoring import DETECTOR_NAMES
 from aed_models.layout import RunLayout
 from aed_models.recipe import Profile, check_profile
@@ -159,6 +160,7 @@ def correction_record(cfg: CorrectionConfig) -> dict[str, Any]:
         "rollouts": len(refs),
         "successes_without": int(sum(r.success for r in refs)),
         "detectors": detectors,
+        "paper": paper.correction_numbers(cfg.task, cfg.policy),
     }
 
 

@@ -27,6 +27,7 @@ from aed_eval.evaluate import (
     too_small,
     with_interval,
 )
+from aed_eval.paper import POLICY_SUCCESS
 from aed_eval.scoring import PAPER_DETECTORS
 from aed_tasks import trajectory
 from aed_tasks.locks import locks_out_folder
@@ -245,18 +246,20 @@ def build_report(cases: list[dict[str, Any]], detectors: list[str]) -> tuple[dic
         "## Policy success rates (novel environments)",
         "",
         (
-            "| case | success rate [95%] | successes / rollouts | per environment | horizon | "
-            "median steps success / failure |"
+            "| case | success rate [95%] | successes / rollouts | per environment | paper, per "
+            "environment | horizon | median steps success / failure |"
         ),
-        "|---|---:|---:|---:|---:|---|",
+        "|---|---:|---:|---:|---:|---:|---|",
     ]
     for name, case in zip(names, cases, strict=True):
         r = case["rollouts"]
         sr, lengths = r["success_rate"], r["lengths"][case["ending"]]
         report["policies"][name] = r
+        theirs = POLICY_SUCCESS.get(case["task"], {}).get(case["policy"])
         lines.append(
             f"| {name} | {with_interval(100 * sr['rate'], [100 * x for x in sr['interval']], 1)}% "
             f"| {sr['successes']} / {r['count']} | {100 * sr['mean']:.1f} ± {100 * sr['std']:.1f}% "
+            f"| {'-' if theirs is None else '{:.1f} ± {:.1f}%'.format(*theirs)} "
             f"| {r['horizon']} | "
             f"{lengths['success'].get('median', '-')} / {lengths['failure'].get('median', '-')} |"
         )

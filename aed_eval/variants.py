@@ -21,10 +21,12 @@ import dataclasses
 import json
 import logging
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from aed_eval import paper
 from aed_eval.scoring import DETECTOR_NAMES
 from aed_models.layout import RunLayout
 
@@ -283,25 +285,30 @@ def variant_stages(protocol: Any, experiment: DetectorExperiment, variant: Varia
     return stages
 
 
+def _cells(results: dict[str, Any], detectors: Sequence[str], ending: str) -> dict[str, Any]:
+    """Each detector's rollout-level AUROC and AUPRC with intervals, under one ending."""
+    keys = ("auroc", "auroc_interval", "auprc", "auprc_interval")
+    return {d: {k: results["detectors"][d][ending][k] for k in keys} for d in detectors}
+
+
 def variants_record(
     runs: Path, experiment: DetectorExperiment, task: str, policy: str
 ) -> dict[str, Any]:
-    """Every variant's rollout-level AUROC and AUPRC (default ending, with intervals) of one
-    (task, policy), read from the variants' evaluations."""
+    """Every variant's rollout-level AUROC and AUPRC (with intervals) of one (task, policy),
+    read from the variants' evaluations: under the default ending, and under the paper's, the
+    metric of the paper's numbers (`aed_eval.paper`) the record carries where it gives them."""
     rows = {}
     for variant in experiment.variants:
         path = RunLayout(variant_root(runs, experiment.name, variant)).evaluation(task, policy)
         results = json.loads((path / "results.json").read_text())
-        cells = {}
-        for d in experiment.detectors:
-            cell = results["detectors"][d][results["ending"]]
-            cells[d] = {k: cell[k] for k in ("auroc", "auroc_interval", "auprc", "auprc_interval")}
         rows[variant.name] = {
             "evaluation": str(path),
             "policy_sha256": results["policy_sha256"],
             "outcomes": results["rollouts"]["outcomes"][results["ending"]],
-            "detectors": cells,
+            "detectors": _cells(results, experiment.detectors, results["ending"]),
         }
+        if "success" in results["endings"]:  # the paper's ending: its numbers' metric
+            rows[variant.name]["paper_ending"] = _cells(results, experiment.detectors, "success")
     shas = {row["policy_sha256"] for row in rows.values()}
     if len(shas) != 1:
         raise ValueError(f"{experiment.name} {task}/{policy}: variants scored different policies")
@@ -314,4 +321,5 @@ def variants_record(
         "detectors": list(experiment.detectors),
         "spread": experiment.spread,
         "variants": rows,
+        "paper": paper.variant_numbers(experiment.name, task, policy),
     }

@@ -22,24 +22,14 @@ import numpy as np
 import tyro
 
 from aed_eval.metrics import rate_interval
+from aed_eval.paper import POLICY_SUCCESS
 from aed_eval.results import write_result
 from aed_models.checkpoint import load_checkpoint
 from aed_models.layout import RunLayout
 from aed_models.train.policy import training_summary
-from aed_tasks import trajectory
+from aed_tasks import PAPER_TASK_ORDER, trajectory
 
 logger = logging.getLogger("policy_table")
-
-# Paper, appendix table "FSI policy performance": success rate and its std over novel envs (%).
-PAPER_SUCCESS = {
-    "CloseDrawer": {"naive_dc": (91.11, 20.85), "dct": (80.56, 26.71), "scan": (88.33, 13.94)},
-    "PressButton": {"naive_dc": (51.94, 18.79), "dct": (80.56, 11.65), "scan": (75.56, 12.68)},
-    "PickPlace": {"naive_dc": (55.00, 24.98), "dct": (64.05, 19.77), "scan": (71.19, 15.38)},
-    "MoveGlassCup": {"naive_dc": (42.25, 34.04), "dct": (88.00, 14.87), "scan": (58.25, 20.33)},
-    "OrganizeTable": {"naive_dc": (12.20, 13.93), "dct": (79.00, 9.27), "scan": (66.60, 23.18)},
-    "BackToBox": {"naive_dc": (8.89, 9.21), "dct": (29.17, 9.46), "scan": (58.89, 10.87)},
-    "FactoryPacking": {"naive_dc": (45.42, 30.92), "dct": (88.75, 7.11), "scan": (63.75, 33.11)},
-}
 
 
 @dataclass
@@ -75,7 +65,7 @@ def row(layout: RunLayout, task: str, policy: str) -> dict | None:
     counts = {}
     for ref in trajectory.scan_collection(layout.data(task, "base")).episodes():
         counts[ref.role] = counts.get(ref.role, 0) + 1
-    paper = PAPER_SUCCESS.get(task, {}).get(policy)
+    paper = POLICY_SUCCESS.get(task, {}).get(policy)
     return {
         "task": task,
         "policy": policy,
@@ -114,7 +104,7 @@ def main(cfg: Config) -> list[dict]:
         for p in cfg.policies
         if (r := row(layout, t, p)) is not None
     ]
-    order = {name: i for i, name in enumerate(PAPER_SUCCESS)}
+    order = {name: i for i, name in enumerate(PAPER_TASK_ORDER)}
     rows = sorted(kept_rows(cfg.out, cfg.tasks) + rows, key=lambda r: order.get(r["task"], 99))
     record = {"kind": "policy_table", "records": rows}
     written = write_result(cfg.out, record)

@@ -145,3 +145,84 @@ def test_policy_table_keeps_the_rows_of_tasks_measured_elsewhere(tmp_path, monke
     (tmp_path / "other.json").write_text(json.dumps({"kind": "lever_table", "records": []}))
     with pytest.raises(ValueError, match="not a policy table"):
         script.kept_rows(tmp_path / "other.json", ("PickPlace",))
+
+
+def variant_cells(auprc: float) -> dict:
+    cell = {"auroc": 0.6, "auroc_interval": [0.5, 0.7], "auprc": auprc}
+    return {d: {**cell, "auprc_interval": [auprc - 0.1, auprc + 0.1]} for d in DETECTORS}
+
+
+def test_a_variant_table_stands_beside_the_papers_numbers_under_both_endings(tmp_path):
+    """Demonstration quality, DCT: here (default ending, the paper's ending) / the paper's AUPRC
+    for each variant and detector; a variant evaluated without the paper's ending says n/a."""
+    from aed_eval import paper
+
+    theirs = paper.variant_numbers("demo_quality", "PressButton", "dct")
+    assert theirs["metric"] == "auprc"
+    assert list(theirs["variants"]) == ["all optimal", "2 sub-optimal", "all sub-optimal"]
+    variants = {
+        name: {
+            "outcomes": {"successes": 3, "failures": 7},
+            "detectors": variant_cells(0.4),
+            "paper_ending": variant_cells(0.55),
+        }
+        for name in theirs["variants"]
+    }
+    del variants["all sub-optimal"]["paper_ending"]
+    record = {
+        "kind": "detector_variants",
+        "experiment": "demo_quality",
+        "title": "Demonstration quality",
+        "task": "PressButton",
+        "policy": "dct",
+        "detectors": list(DETECTORS),
+        "spread": False,
+        "variants": variants,
+        "paper": theirs,
+    }
+    table = write_result(tmp_path / "dq.json", record)[1].read_text()
+    assert "| AUPRC | all optimal: here | here, paper's ending | paper | 2 sub-optimal:" in table
+    assert "| policy success rate | 30.0% | | 80.56 +- 11.65% | 30.0% | | 78.61 +- 14.02%" in table
+    assert (
+        "| probe | 0.400 | 0.550 | 0.7474 | 0.400 | 0.550 | 0.7530 | 0.400 | n/a | 0.7588 |"
+        in table
+    )
+    assert stale_markdown(tmp_path) == []
+
+
+def test_the_paper_gives_numbers_only_for_what_it_ran():
+    from aed_eval import paper
+    from aed_tasks import PAPER_TASK_ORDER
+
+    assert paper.variant_numbers("viewpoint", "PressButton", "dct")["metric"] == "auroc"
+    assert paper.variant_numbers("viewpoint", "PressButton", "scan") is None  # DCT only
+    assert paper.variant_numbers("demo_quality", "PickPlace", "dct") is None
+    assert paper.variant_numbers("rollout_augmentation", "PickPlace", "scan") is None  # a figure
+    assert paper.correction_numbers("PressButton", "scan") is None
+    assert list(paper.POLICY_SUCCESS) == list(PAPER_TASK_ORDER)
+    assert all(set(rates) == {"naive_dc", "dct", "scan"} for rates in paper.POLICY_SUCCESS.values())
+
+
+def test_the_correction_table_shows_the_papers_rates_beside_ours(tmp_path):
+    from aed_eval import paper
+
+    quiet = {"alarmed": 0, "alarmed_on_success": 0, "only_without": 0, "only_with": 0}
+    detectors = {d: {"successes": 5, **quiet, "quiet_replays_changed": 0} for d in DETECTORS}
+    detectors["svdd_ed"] = detectors["probe"]
+    record = {
+        "kind": "error_correction",
+        "task": "PressButton",
+        "policy": "dct",
+        "threshold": 0.9,
+        "horizon": 200,
+        "rollouts": 10,
+        "successes_without": 5,
+        "detectors": detectors,
+        "paper": paper.correction_numbers("PressButton", "dct"),
+    }
+    table = write_result(tmp_path / "correction.json", record)[1].read_text()
+    assert "| none (the stored rollouts) | 50.0% " in table and " 80.56 +- 11.65% |" in table
+    assert table.count("82.22 +- 10.17% |") == 1 and "| svdd_ed |" in table
+    assert [line for line in table.splitlines() if line.startswith("| svdd_ed")][0].endswith(
+        "| not run |"
+    )

@@ -16,23 +16,37 @@ def _rate(successes: int, trials: int) -> str:
     return f"{rate} ({successes}/{trials})"
 
 
+def _paper_rate(rate: list[float] | None) -> str:
+    return "not run" if rate is None else "{:.2f} +- {:.2f}%".format(*rate)
+
+
 @renderer("error_correction")
 def render_correction(record: dict[str, Any], stem: Path) -> list[Path]:
     n = record["rollouts"]
+    paper = record.get("paper")
     lines = [
         f"Error correction, {record['task']} / {record['policy']}: {n} novel rollouts of "
         f"{record['horizon']} steps replayed with each detector; at an alarm (score >= "
         f"{record['threshold']:g}) the TCP goes above the table centre and the policy resumes.\n",
         "| detector | success rate [95%] | alarmed (on rollouts that had succeeded) "
-        "| only without / only with | unalarmed replays whose outcome changed |",
-        "|---|---:|---:|---:|---:|",
-        f"| none (the stored rollouts) | {_rate(record['successes_without'], n)} | | | |",
+        "| only without / only with | unalarmed replays whose outcome changed |"
+        + (" paper |" if paper else ""),
+        "|---|---:|---:|---:|---:|" + ("---:|" if paper else ""),
+        f"| none (the stored rollouts) | {_rate(record['successes_without'], n)} | | | |"
+        + (f" {_paper_rate(paper['without'])} |" if paper else ""),
     ]
     for d, s in record["detectors"].items():
         lines.append(
             f"| {d} | {_rate(s['successes'], n)} | {s['alarmed']} ({s['alarmed_on_success']}) "
             f"| {s['only_without']} / {s['only_with']} | {s['quiet_replays_changed']} |"
+            + (f" {_paper_rate(paper['detectors'].get(d))} |" if paper else "")
         )
+    if paper:
+        lines += [
+            "",
+            f"Paper: its {paper['source']}, the success rate's mean +- std over the novel "
+            "environments (20 rollouts each); it ran no correction with SVDDED.",
+        ]
     md = stem.with_suffix(".md")
     md.write_text("\n".join(lines) + "\n" + command_line(record))
     return [md]

@@ -41,9 +41,49 @@ def render_variants(record: dict[str, Any], stem: Path) -> list[Path]:
                 row += f" {np.nanmean(values):.3f} +- {np.nanstd(values, ddof=1):.3f} |"
             lines.append(row)
         lines.append("")
+    if record.get("paper"):
+        lines += _beside_paper(record, names)
     md = stem.with_suffix(".md")
     md.write_text("\n".join(lines) + command_line(record))
     return [md, _plot(record, names, Path(f"{stem}.png"))]
+
+
+def _beside_paper(record: dict[str, Any], names: list[str]) -> list[str]:
+    """Our point estimates (default ending, and the paper's: stopped at the first success,
+    the same metric as its numbers) beside the paper's, for the variants it reports."""
+    paper = record["paper"]
+    metric = paper["metric"]
+    shared = [n for n in names if n in paper["variants"]]
+    head = [f"{n}: here | here, paper's ending | paper" for n in shared]
+    lines = [
+        f"Beside the paper's ({paper['source']}, {metric.upper()}; its policies and detectors at "
+        "its sizes, its rollouts stopped at their first success):\n",
+        f"| {metric.upper()} | " + " | ".join(head) + " |",
+        "|---|" + "---:|---:|---:|" * len(shared),
+    ]
+    cells = []
+    for n in shared:
+        outcomes = record["variants"][n]["outcomes"]
+        rate = 100 * outcomes["successes"] / (outcomes["successes"] + outcomes["failures"])
+        theirs = "{:.2f} +- {:.2f}%".format(*paper["variants"][n]["success_rate"])
+        cells.append(f"{rate:.1f}% | | {theirs}")
+    lines.append("| policy success rate | " + " | ".join(cells) + " |")
+    for d in record["detectors"]:
+        cells = []
+        for n in shared:
+            variant = record["variants"][n]
+            ours = [
+                _point(variant[view][d][metric]) if view in variant else "n/a"
+                for view in ("detectors", "paper_ending")
+            ]
+            theirs = paper["variants"][n]["detectors"].get(d)
+            cells.append(" | ".join([*ours, "-" if theirs is None else f"{theirs:.4f}"]))
+        lines.append(f"| {d} | " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
+def _point(value: float | None) -> str:
+    return "n/a" if value is None or not np.isfinite(value) else f"{value:.3f}"
 
 
 def _plot(record: dict[str, Any], names: list[str], path: Path) -> Path:

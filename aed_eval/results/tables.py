@@ -1,6 +1,6 @@
 """The policy tables of `results/<profile>/`: every policy's novel success rate beside the
-paper's (`scripts/policy_table.py`), and one policy's variants paired on the same rollout seeds
-(`scripts/lever_table.py`)."""
+paper's (`scripts/policy_table.py`, the paper's from `aed_eval.paper`), and one policy's variants
+paired on the same rollout seeds (`scripts/lever_table.py`)."""
 
 from __future__ import annotations
 
