@@ -58,7 +58,9 @@ def load_checked_detector(path: Path, name: str, task: str, policy_sha256: str) 
 
 
 class EpisodeScorer:
-    """Scores episodes with several detectors; frames read and policy features computed once."""
+    """Scores episodes with several detectors: each episode's frames read and policy features
+    computed once, each environment's demonstrations read by every detector once (`prepare`;
+    score episodes environment by environment)."""
 
     def __init__(self, detectors: Sequence[LoadedDetector], policy: Any, demos: Demonstrations):
         from aed_models.data import EpisodeReader
@@ -67,9 +69,17 @@ class EpisodeScorer:
         self.policy = policy
         self.demos = demos
         self.reader = EpisodeReader(demos.camera)  # the camera the demonstrations were seen by
+        self._prepared: tuple[int, dict[str, Any]] | None = None
 
     def close(self) -> None:
         self.reader.close()
+
+    def _prepared_demos(self, env_index: int) -> dict[str, Any]:
+        """Each detector's `prepare` of the environment's demonstrations (the latest kept)."""
+        if self._prepared is None or self._prepared[0] != env_index:
+            demos = self.demos[env_index]
+            self._prepared = (env_index, {d.name: d.model.prepare(demos) for d in self.detectors})
+        return self._prepared[1]
 
     def _inputs(self, ref: trajectory.EpisodeRef) -> tuple[dict, dict, Any]:
         """(rollout batch of one, its environment's demonstrations, the policy's features or
@@ -93,16 +103,22 @@ class EpisodeScorer:
     def score(self, ref: trajectory.EpisodeRef) -> dict[str, np.ndarray]:
         """Per-frame scores (T + 1,) of one stored episode by every detector, post-processed as
         online (`aed_models.detectors.postprocess`)."""
-        rollout, demos, features = self._inputs(ref)
-        return {d.name: self._scores(d, rollout, demos, features) for d in self.detectors}
+        rollout, _, features = self._inputs(ref)
+        prepared = self._prepared_demos(ref.env_index)
+        return {
+            d.name: self._scores(d, rollout, prepared[d.name], features) for d in self.detectors
+        }
 
     @torch.inference_mode()
     def embed(self, ref: trajectory.EpisodeRef) -> dict[str, np.ndarray]:
         """Per-frame embeddings (T + 1, E) of one stored episode by every detector
         (`ErrorDetector.embed`)."""
-        rollout, demos, features = self._inputs(ref)
+        rollout, _, features = self._inputs(ref)
+        prepared = self._prepared_demos(ref.env_index)
         return {
-            d.name: d.model.embed(rollout, demos, features if d.model.requires_policy else None)[0]
+            d.name: d.model.embed(
+                rollout, prepared[d.name], features if d.model.requires_policy else None
+            )[0]
             .cpu()
             .numpy()
             for d in self.detectors
@@ -110,7 +126,7 @@ class EpisodeScorer:
 
     @staticmethod
     def _scores(
-        d: LoadedDetector, rollout: dict[str, Any], demos: dict[str, Any], features: Any
+        d: LoadedDetector, rollout: dict[str, Any], demos: Any, features: Any
     ) -> np.ndarray:
         """One detector's post-processed scores (T + 1,) of a batch of one rollout."""
         from aed_models.detectors.postprocess import postprocess

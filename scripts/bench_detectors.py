@@ -1,9 +1,13 @@
-"""Benchmark the error detectors: online per-step latency and training throughput.
+"""Benchmark the error detectors: online per-step latency, offline scoring and training
+throughput.
 
 Online: after `reset(demos)`, the median cost of one `step` around t = 10 and around t = 200
 (DCTED's cached self-attention grows with t; LSTM-based detectors must not). Visual
 detectors include their own frame encoder; PrObe and RND-OE get the policy's (f_h, f_zeta)
-as inputs, so their numbers exclude the policy's own cost. Training: frames per second of
+as inputs, so their numbers exclude the policy's own cost. Offline: the median cost of
+`score` on one rollout of `horizon` frames given 5 demonstrations of `demo_frames` frames, the
+demonstrations read at every call and prepared once for their environment (`prepare`), as
+`aed evaluate` scores the rollouts of an environment one by one. Training: frames per second of
 `loss` + backward + RMSprop step on one iteration of the detector composition (5 demos +
 20 rollouts) at 4 x 120 x 160. Synthetic tensors: no data or policy needed.
 
@@ -43,6 +47,9 @@ class Config:
     task_dim: int = 256
     horizon: int = 210
     """Online steps per rollout (latency is read around t=10 and t=200)."""
+    demo_frames: int = 80
+    """Frames per demonstration in offline scoring (the experts' episodes: 60-200)."""
+    score_repeats: int = 5
     rollout_frames: int = 32
     """Frames per rollout in the training iteration."""
     train_iterations: int = 3
@@ -60,6 +67,8 @@ class Row:
     paper_parameters: float | None
     step_ms_t10: float
     step_ms_t200: float
+    score_ms_demos_each_call: float
+    score_ms_prepared: float
     train_frames_per_s: float
 
 
@@ -107,6 +116,25 @@ def online_latency(detector, demos: dict, cfg: Config) -> tuple[float, float]:
     return 1e3 * statistics.median(times[5:16]), 1e3 * statistics.median(times[195:206])
 
 
+def offline_scoring(detector, cfg: Config) -> tuple[float, float]:
+    """Median ms of `score` on one rollout: the demonstrations read at every call, and prepared
+    once (the two measured alternately, so that both see the same machine)."""
+    device = torch.device(cfg.device)
+    detector.eval()
+    batch, features = to_device(synthetic_batch(1, cfg.horizon, length=cfg.demo_frames), device)
+    features = features if detector.requires_policy else None
+    raw, prepared = [], []
+    with torch.inference_mode():
+        ready = detector.prepare(batch["demos"])
+        for _ in range(cfg.score_repeats):
+            for demos, times in ((batch["demos"], raw), (ready, prepared)):
+                start = time.perf_counter()
+                detector.score(batch["rollouts"], demos, features)
+                synchronize(device)
+                times.append(time.perf_counter() - start)
+    return 1e3 * statistics.median(raw), 1e3 * statistics.median(prepared)
+
+
 def train_throughput(detector, cfg: Config) -> float:
     device = torch.device(cfg.device)
     detector.train()
@@ -148,6 +176,7 @@ def main(cfg: Config) -> None:
             cfg.device
         )
         t10, t200 = online_latency(detector, batch["demos"], cfg)
+        raw, prepared = offline_scoring(detector, cfg)
         rate = train_throughput(detector, cfg)
         rows.append(
             Row(
@@ -156,6 +185,8 @@ def main(cfg: Config) -> None:
                 PAPER_PARAMETERS.get(name),
                 round(t10, 3),
                 round(t200, 3),
+                round(raw, 1),
+                round(prepared, 1),
                 round(rate, 1),
             )
         )
@@ -182,14 +213,18 @@ def main(cfg: Config) -> None:
             f"torch {torch.__version__}, {machine}"
         ),
         "",
-        "| detector | parameters | paper | step ms (t=10) | step ms (t=200) | train frames/s |",
-        "|---|---:|---:|---:|---:|---:|",
+        (
+            f"| detector | parameters | paper | step ms (t=10) | step ms (t=200) | score ms, "
+            f"{cfg.horizon} frames (demos read each call) | (prepared once) | train frames/s |"
+        ),
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         paper = f"{r.paper_parameters / 1e6:.2f}M" if r.paper_parameters else "-"
         lines.append(
             f"| {r.detector} | {r.parameters / 1e6:.2f}M | {paper} | {r.step_ms_t10:.3f} | "
-            f"{r.step_ms_t200:.3f} | {r.train_frames_per_s:.0f} |"
+            f"{r.step_ms_t200:.3f} | {r.score_ms_demos_each_call:.0f} | "
+            f"{r.score_ms_prepared:.0f} | {r.train_frames_per_s:.0f} |"
         )
     table = "\n".join(lines)
     (cfg.out / f"bench_detectors_{cfg.profile}.md").write_text(table + "\n")

@@ -4,7 +4,9 @@ A detector says, per frame of an agent rollout, how likely a behaviour error is 
 "probability"`) or how far the frame lies from normal behaviour (`"distance"`), two ways that
 agree to 1e-5 in eval mode: batched, `score(rollouts, demos, policy_features) -> (B, T)`, and
 online, `reset(demos)` then `step(frame, policy_features) -> float` with constant state per
-step. Both give per-frame outputs; scoring and monitoring post-process them in one place
+step. Scoring many rollouts of one environment, `prepare(demos)` reads the demonstrations once
+(a detector's embeddings or memory of them) and stands for them in `score`, `embed` and
+`reset`. Both give per-frame outputs; scoring and monitoring post-process them in one place
 (`aed_models.detectors.postprocess`). Policy-dependent detectors (`requires_policy`) read the
 frozen policy's history features f_h (B, T, Dh) and task embedding f_zeta (B, T, Dz) instead
 of frames; online, the pair the policy's `features()` returns.
@@ -12,6 +14,7 @@ of frames; online, the pair the policy's `features()` returns.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import torch
@@ -54,6 +57,14 @@ def split_features(
     )
 
 
+@dataclass(frozen=True, eq=False)
+class PreparedDemos:
+    """One environment's demonstrations as one detector reads them (`ErrorDetector.prepare`)."""
+
+    detector: ErrorDetector
+    value: Any
+
+
 class ErrorDetector(nn.Module):
     """Base class: see the module docstring. Subclasses set the class attributes and implement
     `loss`, `score`, `reset` and `step`."""
@@ -80,6 +91,29 @@ class ErrorDetector(nn.Module):
         aligned with `batch["rollouts"]["mask"]`. Returns the loss and its named parts.
         """
         raise NotImplementedError
+
+    # -- demonstrations -----------------------------------------------------------------------
+    def read_demos(self, demos: Batch | None) -> Any:
+        """What the detector reads of an environment's demonstrations (`frames`, `mask`): the
+        demonstrations themselves, unless a subclass encodes them."""
+        return demos
+
+    @torch.no_grad()
+    def prepare(self, demos: Batch | None) -> PreparedDemos:
+        """`read_demos(demos)` once, to pass as the demonstrations of every rollout of their
+        environment."""
+        return PreparedDemos(self, self.read_demos(demos))
+
+    def demo_context(self, demos: Batch | PreparedDemos | None) -> Any:
+        """`read_demos(demos)`, or what `prepare` computed of them."""
+        if not isinstance(demos, PreparedDemos):
+            return self.read_demos(demos)
+        if demos.detector is not self:
+            raise ValueError(
+                f"{self.name}: demonstrations prepared by another detector "
+                f"({demos.detector.name}); call this detector's prepare(demos)"
+            )
+        return demos.value
 
     # -- inference --------------------------------------------------------------------------
     def score(

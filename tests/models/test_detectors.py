@@ -125,8 +125,10 @@ def test_offline_scores_equal_online_steps(name):
     offline = detector.score(rollouts, demos, (history, task))
     assert offline.shape == rollouts["mask"].shape
     assert (offline[~rollouts["mask"]] == 0).all()
+    prepared = detector.prepare(demos)  # the demonstrations read once, for every rollout
+    torch.testing.assert_close(detector.score(rollouts, prepared, (history, task)), offline)
     for i, length in enumerate(rollouts["lengths"].tolist()):
-        detector.reset(demos)
+        detector.reset(prepared if i % 2 else demos)
         online = [
             detector.step(rollouts["frames"][i, t], (history[i, t], task[i, t]))
             for t in range(length)
@@ -153,6 +155,16 @@ def test_embeddings_are_what_the_last_layer_scores(name):
         rescored = torch.sigmoid(last(embeddings).squeeze(-1))
     scores = detector.score(rollouts, demos, features)
     torch.testing.assert_close(rescored * mask, scores, atol=1e-5, rtol=0)
+    torch.testing.assert_close(
+        detector.embed(rollouts, detector.prepare(demos), features), embeddings
+    )
+
+
+def test_demonstrations_prepared_by_another_detector_are_refused():
+    batch, features = make_batch()
+    other = tiny("dct_ed").prepare(batch["demos"])
+    with pytest.raises(ValueError, match="svdd_ed: demonstrations prepared by another detector"):
+        tiny("svdd_ed").score(batch["rollouts"], other, features)
 
 
 def test_a_detector_without_a_classifier_says_it_has_no_embedding():
@@ -736,3 +748,5 @@ def test_detector_benchmark_runs_every_mini_detector():
         detector = make_detector(name, DETECTORS.preset(name, "mini"), **overrides)
         t10, t200 = bench.online_latency(detector, batch["demos"], cfg)
         assert t10 > 0 and t200 > 0 and bench.train_throughput(detector, cfg) > 0
+        small = bench.Config(horizon=8, demo_frames=4, score_repeats=1)
+        assert min(bench.offline_scoring(detector, small)) > 0

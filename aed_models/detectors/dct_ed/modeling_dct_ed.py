@@ -17,6 +17,7 @@ from torch import nn
 from aed_models.detectors.base import (
     Batch,
     ErrorDetector,
+    PreparedDemos,
     check_demos,
     check_frame,
     rollout_frames,
@@ -92,12 +93,15 @@ class DCTED(ErrorDetector):
         tokens, mask = self.encode_demos(demos)
         return [layer.cross_attn.project_kv(tokens) for layer in self.rollout_layers], mask
 
+    def read_demos(self, demos: Batch | None) -> tuple[list[KV], torch.Tensor]:
+        return self.memory(demos)
+
     # -- rollouts -----------------------------------------------------------------------------
-    def _logits(self, rollouts: Batch, demos: Batch) -> torch.Tensor:
+    def _logits(self, rollouts: Batch, demos: Batch | PreparedDemos) -> torch.Tensor:
         from aed_models.nn import encode_frames
 
         frames, mask = rollout_frames(rollouts)
-        memory, memory_mask = self.memory(demos)
+        memory, memory_mask = self.demo_context(demos)
         x = encode_frames(self.encoder, frames, mask)
         x = x + sinusoid(torch.arange(x.shape[1], device=x.device), self.config.feature_dim)
         b = x.shape[0]
@@ -123,7 +127,7 @@ class DCTED(ErrorDetector):
 
     @torch.no_grad()
     def reset(self, demos: Batch | None = None) -> None:
-        self._memory, self._memory_mask = self.memory(demos)
+        self._memory, self._memory_mask = self.demo_context(demos)
         self._cache = [KVCache() for _ in self.rollout_layers]
         self._t = 0
 

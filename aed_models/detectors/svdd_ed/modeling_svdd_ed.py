@@ -74,6 +74,9 @@ class SVDDED(ErrorDetector):
         picked = embeddings.gather(1, latest[..., None].expand(-1, -1, embeddings.shape[-1]))
         return picked.mean(0)
 
+    def read_demos(self, demos: Batch | None) -> torch.Tensor:
+        return self.centres(demos)
+
     def distance(
         self, embeddings: torch.Tensor, steps: torch.Tensor, centres: torch.Tensor
     ) -> torch.Tensor:
@@ -118,7 +121,8 @@ class SVDDED(ErrorDetector):
 
         frames, mask = rollout_frames(rollouts)
         embeddings = encode_frames(self.encoder, frames, mask)
-        return self.distance(embeddings, steps_of(rollouts, mask), self.centres(demos)) * mask
+        centres = self.demo_context(demos)
+        return self.distance(embeddings, steps_of(rollouts, mask), centres) * mask
 
     @torch.no_grad()
     def embed(
@@ -131,7 +135,7 @@ class SVDDED(ErrorDetector):
 
     @torch.no_grad()
     def reset(self, demos: Batch | None = None) -> None:
-        self._centres, self._t = self.centres(demos), 0
+        self._centres, self._t = self.demo_context(demos), 0
 
     @torch.no_grad()
     def step(self, frame: torch.Tensor | None = None, policy_features: Any = None) -> float:

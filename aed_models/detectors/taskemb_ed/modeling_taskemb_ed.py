@@ -15,6 +15,7 @@ import torch
 from aed_models.detectors.base import (
     Batch,
     ErrorDetector,
+    PreparedDemos,
     check_demos,
     check_frame,
     rollout_frames,
@@ -51,15 +52,18 @@ class TaskEmbED(ErrorDetector):
         feats = self.encoder(ends)
         return torch.cat([feats[:n], feats[n:]], dim=-1).mean(0)
 
+    def read_demos(self, demos: Batch | None) -> torch.Tensor:
+        return self.task_embedding(demos)
+
     def logits(self, frame_feats: torch.Tensor, task: torch.Tensor) -> torch.Tensor:
         task = task.expand(*frame_feats.shape[:-1], task.shape[-1])
         return self.classifier(torch.cat([frame_feats, task], dim=-1)).squeeze(-1)
 
-    def _batch_logits(self, rollouts: Batch, demos: Batch) -> torch.Tensor:
+    def _batch_logits(self, rollouts: Batch, demos: Batch | PreparedDemos) -> torch.Tensor:
         from aed_models.nn import encode_frames
 
         return self.logits(
-            encode_frames(self.encoder, *rollout_frames(rollouts)), self.task_embedding(demos)
+            encode_frames(self.encoder, *rollout_frames(rollouts)), self.demo_context(demos)
         )
 
     def loss(
@@ -80,7 +84,7 @@ class TaskEmbED(ErrorDetector):
 
     @torch.no_grad()
     def reset(self, demos: Batch | None = None) -> None:
-        self._task = self.task_embedding(demos)
+        self._task = self.demo_context(demos)
 
     @torch.no_grad()
     def step(self, frame: torch.Tensor | None = None, policy_features: Any = None) -> float:
