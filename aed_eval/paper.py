@@ -72,25 +72,21 @@ ERROR_CORRECTION: dict[str, Any] = {
 """Table "Error correction results" (Press Button, DCT, threshold 0.9): success rate (mean, std) %
 without correction and corrected at each detector's alarms (the paper leaves SVDDED out)."""
 
-VARIANT_TABLES = {
-    "demo_quality": ("auprc", 'appendix table "Demonstration quality experiment"'),
-    "viewpoint": ("auroc", 'appendix table "Viewpoint changes"'),
+VARIANT_TABLES: dict[str, tuple[str, str, dict[str, dict[str, dict[str, Any]]]]] = {
+    "demo_quality": ("auprc", 'appendix table "Demonstration quality experiment"', DEMO_QUALITY),
+    "viewpoint": ("auroc", 'appendix table "Viewpoint changes"', {"dct": VIEWPOINT}),
 }
-"""The variant experiments the paper gives numbers for: the metric and where they are."""
+"""The variant experiments the paper gives numbers for (on Press Button): the metric, where the
+numbers are, and them by policy."""
 
 
 def variant_numbers(experiment: str, task: str, policy: str) -> dict[str, Any] | None:
     """The paper's numbers for one (task, policy) of a variant experiment, keyed by this
     project's variant names; None where the paper's text gives none."""
-    if experiment not in VARIANT_TABLES or task != "PressButton":
+    metric, source, by_policy = VARIANT_TABLES.get(experiment, (None, None, {}))
+    if task != "PressButton" or policy not in by_policy:
         return None
-    metric, source = VARIANT_TABLES[experiment]
-    variants = DEMO_QUALITY.get(policy) if experiment == "demo_quality" else None
-    if experiment == "viewpoint" and policy == "dct":
-        variants = VIEWPOINT
-    if variants is None:
-        return None
-    return {"metric": metric, "source": source, "variants": variants}
+    return {"metric": metric, "source": source, "variants": by_policy[policy]}
 
 
 def correction_numbers(task: str, policy: str) -> dict[str, Any] | None:
@@ -98,3 +94,8 @@ def correction_numbers(task: str, policy: str) -> dict[str, Any] | None:
     if (task, policy) != ("PressButton", "dct"):
         return None
     return {"source": 'table "Error correction results"', **ERROR_CORRECTION}
+
+
+def format_rate(rate: tuple[float, float] | list[float]) -> str:
+    """A success rate of the paper's, (mean, std) %, as its tables print it."""
+    return "{:.2f} +- {:.2f}%".format(*rate)

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from aed_eval.metrics import proportion_interval
+from aed_eval.paper import format_rate
 from aed_eval.results import command_line, renderer
 
 
@@ -17,7 +18,7 @@ def _rate(successes: int, trials: int) -> str:
 
 
 def _paper_rate(rate: list[float] | None) -> str:
-    return "not run" if rate is None else "{:.2f} +- {:.2f}%".format(*rate)
+    return "not run" if rate is None else format_rate(rate)
 
 
 @renderer("error_correction")

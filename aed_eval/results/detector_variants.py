@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from aed_eval.paper import format_rate
 from aed_eval.results import command_line, renderer, save_figure
 
 
@@ -65,8 +66,7 @@ def _beside_paper(record: dict[str, Any], names: list[str]) -> list[str]:
     for n in shared:
         outcomes = record["variants"][n]["outcomes"]
         rate = 100 * outcomes["successes"] / (outcomes["successes"] + outcomes["failures"])
-        theirs = "{:.2f} +- {:.2f}%".format(*paper["variants"][n]["success_rate"])
-        cells.append(f"{rate:.1f}% | | {theirs}")
+        cells.append(f"{rate:.1f}% | | {format_rate(paper['variants'][n]['success_rate'])}")
     lines.append("| policy success rate | " + " | ".join(cells) + " |")
     for d in record["detectors"]:
         cells = []

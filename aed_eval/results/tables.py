@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from aed_eval.paper import format_rate
 from aed_eval.results import command_line, renderer
 
 
@@ -56,9 +57,7 @@ def policy_table(record: dict[str, Any], stem: Path) -> list[Path]:
         "|---|---|---|---|---|---|---|",
     ]
     for r in record["records"]:
-        paper = (
-            "" if r["paper_success"] is None else "{:.2f} +- {:.2f}%".format(*r["paper_success"])
-        )
+        paper = "" if r["paper_success"] is None else format_rate(r["paper_success"])
         lines.append(
             f"| {r['task']} | {r['policy']} | {_data(r)} | {_cost(r)} | {_loss(r)} "
             f"| {_rate(r)} | {paper} |"
