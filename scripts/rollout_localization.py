@@ -66,6 +66,7 @@ def main(cfg: Config) -> dict:
     reader = EpisodeReader()
     located, approach, success, envs, aimed, closed_at = [], [], [], [], [], []
     close_offsets, responses, commanded, moved = [], [], [], []
+    close_heights, close_steps = [], []
     for ref in sorted(refs, key=lambda r: r.env_index):
         sequence = reader.read(ref)
         points = policy.localizer.locate(
@@ -76,14 +77,12 @@ def main(cfg: Config) -> dict:
         outputs = run(points)
         predicted = stage_targets(run, outputs)
         responses.append(action_response(run, outputs, points, cfg.shift, cfg.steps))
-        with h5py.File(ref.path, "r") as h5:
-            group = h5[ref.traj]
-            states = group["env_states"]
-            kind = "articulations" if cfg.target in states["articulations"] else "actors"
-            xy = states[kind][cfg.target][0, :2]
-            tcp = group["obs/extra/tcp_pose"][()][:, :2]
-            actions = group["actions"][()]
-            closes = np.flatnonzero(actions[:, -1] < 0)
+        target, tcp_xyz, actions = read_track(ref, cfg.target)
+        closes = np.flatnonzero(actions[:, -1] < 0)
+        xy, tcp = target[:2], tcp_xyz[:, :2]
+        if len(closes):
+            close_heights.append(float(tcp_xyz[closes[0], 2] - target[2]))
+            close_steps.append(int(closes[0]))
         steps = min(cfg.steps, len(actions))
         commanded.append(actions[:steps, :2].sum(0))
         moved.append(tcp[steps] - tcp[0])
@@ -121,7 +120,11 @@ def main(cfg: Config) -> dict:
                 axis: 100 * float(np.median(close_offsets[:, i])) if len(closed) else None
                 for i, axis in enumerate("xy")
             },
+            **close_timing(close_heights, close_steps),
         },
+        "expert_first_close": expert_first_close(
+            [r for env in demos.envs() for r in demos.refs[env]], cfg.target
+        ),
         "follow_gain": {
             "shift_cm": 100 * cfg.shift,
             "steps": cfg.steps,
@@ -162,6 +165,48 @@ def main(cfg: Config) -> dict:
     }
     print(json.dumps(result, indent=1))
     return result
+
+
+def read_track(ref, target: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An episode's object position in its first frame (3,), TCP positions (T + 1, 3) and
+    actions (T, 4)."""
+    with h5py.File(ref.path, "r") as h5:
+        group = h5[ref.traj]
+        states = group["env_states"]
+        kind = "articulations" if target in states["articulations"] else "actors"
+        return (
+            states[kind][target][0, :3],
+            group["obs/extra/tcp_pose"][()][:, :3],
+            group["actions"][()],
+        )
+
+
+def close_timing(heights: list[float], steps: list[int]) -> dict:
+    """The median height of the TCP above the object's centre (cm) and the median step at a
+    set of first closes (None where there is none)."""
+    return {
+        "median_height_cm": 100 * float(np.median(heights)) if heights else None,
+        "median_step": float(np.median(steps)) if steps else None,
+    }
+
+
+def expert_first_close(refs: list, target: str) -> dict:
+    """Where and when the demonstrations (the expert) first close the gripper, as
+    `close_timing` (the TCP's horizontal distance to the object beside it)."""
+    heights, steps, distances = [], [], []
+    for ref in refs:
+        point, tcp, actions = read_track(ref, target)
+        closes = np.flatnonzero(actions[:, -1] < 0)
+        if len(closes):
+            heights.append(float(tcp[closes[0], 2] - point[2]))
+            steps.append(int(closes[0]))
+            distances.append(float(np.linalg.norm(tcp[closes[0], :2] - point[:2])))
+    return {
+        "episodes": len(refs),
+        "closed": len(steps),
+        "median_cm": 100 * float(np.median(distances)) if distances else None,
+        **close_timing(heights, steps),
+    }
 
 
 class PolicyRun:

@@ -381,7 +381,12 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
     assert sum(r["located_cm"] < 3 for r in per_rollout) == found["rollouts"]
     # the synthetic episodes never command the gripper closed
     assert diagnosis["first_close"] == {
-        "rollouts": 0, "median_cm": None, "within_2cm": 0, "median_abs_cm": {"x": None, "y": None}
+        "rollouts": 0, "median_cm": None, "within_2cm": 0, "median_abs_cm": {"x": None, "y": None},
+        "median_height_cm": None, "median_step": None,
+    }  # fmt: skip
+    assert diagnosis["expert_first_close"] == {
+        "episodes": 8 * 3, "closed": 0, "median_cm": None, "median_height_cm": None,
+        "median_step": None,
     }  # fmt: skip
     assert all(r["first_close_cm"] is None for r in per_rollout)
     gain = diagnosis["follow_gain"]
