@@ -78,11 +78,11 @@ def main(cfg: Config) -> dict:
         predicted = stage_targets(run, outputs)
         responses.append(action_response(run, outputs, points, cfg.shift, cfg.steps))
         target, tcp_xyz, actions = read_track(ref, cfg.target)
-        closes = np.flatnonzero(actions[:, -1] < 0)
         xy, tcp = target[:2], tcp_xyz[:, :2]
-        if len(closes):
-            close_heights.append(float(tcp_xyz[closes[0], 2] - target[2]))
-            close_steps.append(int(closes[0]))
+        close = first_close(target, tcp_xyz, actions)
+        if close is not None:
+            close_steps.append(close[0])
+            close_heights.append(float(close[1][2]))
         steps = min(cfg.steps, len(actions))
         commanded.append(actions[:steps, :2].sum(0))
         moved.append(tcp[steps] - tcp[0])
@@ -93,8 +93,8 @@ def main(cfg: Config) -> dict:
         aimed.append(
             float("nan") if predicted is None else float(np.linalg.norm(predicted[closest] - xy))
         )
-        closed_at.append(float(distance[closes[0]]) if len(closes) else float("nan"))
-        close_offsets.append(tcp[closes[0]] - xy if len(closes) else np.full(2, np.nan))
+        closed_at.append(float(np.linalg.norm(close[1][:2])) if close else float("nan"))
+        close_offsets.append(close[1][:2] if close else np.full(2, np.nan))
         success.append(bool(ref.success))
         envs.append(ref.env_index)
     located, approach, success, aimed, closed_at = map(
@@ -181,6 +181,17 @@ def read_track(ref, target: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         )
 
 
+def first_close(
+    point: np.ndarray, tcp: np.ndarray, actions: np.ndarray
+) -> tuple[int, np.ndarray] | None:
+    """The first step that commands the gripper closed and the TCP's offset from the object
+    (3,) on it; None for an episode that never closes."""
+    closes = np.flatnonzero(actions[:, -1] < 0)
+    if not len(closes):
+        return None
+    return int(closes[0]), tcp[closes[0]] - point
+
+
 def close_timing(heights: list[float], steps: list[int]) -> dict:
     """The median height of the TCP above the object's centre (cm) and the median step at a
     set of first closes (None where there is none)."""
@@ -195,12 +206,11 @@ def expert_first_close(refs: list, target: str) -> dict:
     `close_timing` (the TCP's horizontal distance to the object beside it)."""
     heights, steps, distances = [], [], []
     for ref in refs:
-        point, tcp, actions = read_track(ref, target)
-        closes = np.flatnonzero(actions[:, -1] < 0)
-        if len(closes):
-            heights.append(float(tcp[closes[0], 2] - point[2]))
-            steps.append(int(closes[0]))
-            distances.append(float(np.linalg.norm(tcp[closes[0], :2] - point[:2])))
+        close = first_close(*read_track(ref, target))
+        if close is not None:
+            steps.append(close[0])
+            heights.append(float(close[1][2]))
+            distances.append(float(np.linalg.norm(close[1][:2])))
     return {
         "episodes": len(refs),
         "closed": len(steps),
