@@ -38,7 +38,7 @@ from aed_tasks import trajectory
 logger = logging.getLogger(__name__)
 
 GROUPS = ("demo", "demo_suboptimal", "agent_success", "agent_failure", "explore")
-IDENTITY = ("task", "split", "seed", "obs_mode", "cameras", "shard_size", "perturb")  # to resume
+IDENTITY = ("task", "split", "seed", "obs_mode", "cameras", "shard_size")  # must match to resume
 
 
 @dataclass
@@ -70,10 +70,6 @@ class CollectConfig:
     num_explore: int = 0
     """Exploration episodes per environment (the arm visits random poses; frames for the scene
     encoder, `aed_tasks.expert.explore`)."""
-    perturb: float = 0.0
-    """Corrective data, DART-style: the chance at each tracked waypoint (gripper open) that the
-    arm of an agent success is pushed off the expert's path for a few steps, the expert then
-    correcting from there; the pushed steps are recorded as `perturbed`, no labels (0: none)."""
     shard_size: int = 10
     """Episodes per shard file (the unit of atomic writes and of resuming)."""
     workers: int = 1
@@ -141,8 +137,6 @@ class CollectConfig:
                 f"num_suboptimal_demos={self.num_suboptimal_demos}: {self.task} has no "
                 "recoverable errors"
             )
-        if not 0.0 <= self.perturb < 1.0:
-            raise ValueError(f"perturb={self.perturb}: must be in [0, 1)")
         if not 0.0 <= self.max_retry_rate:
             raise ValueError(f"max_retry_rate={self.max_retry_rate}: must be >= 0")
         for name in ("shard_size", "workers", "max_attempts"):
@@ -344,7 +338,6 @@ class ExpertRunner(EpisodeRunner):
                         env_index=shard.env_index,
                         suboptimal=shard.suboptimal,
                         frames=False,
-                        perturb=self.cfg.perturb if shard.role == "agent_success" else 0.0,
                     )
             except RuntimeError as e:  # e.g. a script that never reached its error's moment
                 problem = f"{type(e).__name__}: {e}"

@@ -24,9 +24,6 @@ from aed_tasks.locks import folder_lock
 
 logger = logging.getLogger(__name__)
 
-# identity keys added after folders were first written, with the value those folders had
-IDENTITY_DEFAULTS: dict[str, Any] = {"perturb": 0.0}
-
 
 class ShardPlan(Protocol):
     """A planned shard: its file stem, its episode indices and its json form."""
@@ -146,7 +143,7 @@ def prepare_folder(
     out.mkdir(parents=True, exist_ok=True)
     manifest = trajectory.read_manifest(out)
     if manifest is not None:
-        old = {**IDENTITY_DEFAULTS, **manifest.get("identity", {})}
+        old = manifest.get("identity", {})
         for key, value in identity.items():
             if old.get(key) != value:
                 raise trajectory.CollectionError(

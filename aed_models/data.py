@@ -189,8 +189,7 @@ class FrameSequence:
     features: torch.Tensor | None = None  # (L, D) float32: a frozen visual head's, cached
     located: torch.Tensor | None = None  # (L, 3K) float32: the localizer's points, repeated
     action_chunks: torch.Tensor | None = None  # (L, C, A) float32: the actions from each frame on
-    chunk_valid: torch.Tensor | None = None  # (L, C) bool: which of them are the expert's
-    action_valid: torch.Tensor | None = None  # (L,) bool: the frame's action is the expert's
+    chunk_valid: torch.Tensor | None = None  # (L, C) bool: which of them the episode has
 
     def __len__(self) -> int:
         return len(self.source)
@@ -238,9 +237,7 @@ class EpisodeReader:
         """Frames `indices` (default: all T + 1) of one episode, in that order (repeats allowed);
         `images=False` reads everything but the images. `chunk` > 1 also gives, for each frame,
         the episode's next `chunk` actions from it (`action_chunks`, `chunk_valid`), whichever
-        frames were read. Actions that pushed the arm off the expert's path (`perturbed`) are
-        no labels: `action_valid` is False there, and `chunk_valid` from the first of them
-        on."""
+        frames were read."""
         h5 = self._file(ref.path)
         group = h5[ref.traj]
         if indices is None:
@@ -264,15 +261,10 @@ class EpisodeReader:
         labels = frame_labels(group["error_label"][()]).astype(np.float32)[indices]
         recorded = group["actions"][()].astype(np.float32)
         actions = np.concatenate([recorded, np.zeros((1, recorded.shape[1]), np.float32)])[indices]
-        expert = np.ones(len(recorded) + 1, dtype=bool)
-        if "perturbed" in group:
-            expert[:-1] = ~group["perturbed"][()].astype(bool)
         action_chunks = chunk_valid = None
         if chunk > 1:
             later = indices[:, None] + np.arange(chunk)[None]  # (L, C)
-            # an expert's action after a perturbation answers a push the frame cannot foresee
-            valid = np.logical_and.accumulate(expert[later.clip(max=len(recorded))], axis=1)
-            valid &= later < len(recorded)
+            valid = later < len(recorded)
             action_chunks = torch.from_numpy(
                 recorded[later.clip(max=len(recorded) - 1)] * valid[..., None]
             )
@@ -299,7 +291,6 @@ class EpisodeReader:
             subgoal,
             action_chunks=action_chunks,
             chunk_valid=chunk_valid,
-            action_valid=torch.from_numpy(expert[indices]),
         )
 
     def close(self) -> None:
@@ -324,8 +315,8 @@ def _read_rows(dataset: Any, rows: np.ndarray) -> np.ndarray:
 def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
     """Pad to the longest: frames (B, L, 4, H, W), labels (B, L), actions (B, L, A), lengths (B,),
     mask (B, L), source (B, L) (each frame's index in its episode), and proprio
-    (B, L, PROPRIO_DIM), subgoal (B, L, 3), located (B, L, 3K), action_valid (B, L) and
-    action_chunks (B, L, C, A) with chunk_valid (B, L, C) when every sequence has them.
+    (B, L, PROPRIO_DIM), subgoal (B, L, 3), located (B, L, 3K) and action_chunks (B, L, C, A)
+    with chunk_valid (B, L, C) when every sequence has them.
     Sequences read without images give their cached `features` (B, L, D) instead of frames."""
     if not seqs:
         return {}
@@ -352,15 +343,7 @@ def pad_sequences(seqs: Sequence[FrameSequence]) -> dict[str, torch.Tensor]:
             to_frames(s.rgb, s.depth, out=frames[i, : len(s)])
             frames[i, len(s) :] = 0.0
         batch["frames"] = frames
-    for key in (
-        "features",
-        "proprio",
-        "subgoal",
-        "located",
-        "action_chunks",
-        "chunk_valid",
-        "action_valid",
-    ):
+    for key in ("features", "proprio", "subgoal", "located", "action_chunks", "chunk_valid"):
         if all(getattr(s, key) is not None for s in seqs):
             shape, dtype = getattr(seqs[0], key).shape[1:], getattr(seqs[0], key).dtype
             dtype = torch.bool if dtype == torch.bool else torch.float32

@@ -47,9 +47,6 @@ class Episode:
     first_attempt_problem: str = ""
     # the arm visits random poses instead of doing the task (`aed_tasks.expert.explore`)
     explore: bool = False
-    # (T,) bool, where the arm was pushed off the expert's path (`solve(perturb=...)`): those
-    # actions are no expert's labels; None when nothing was
-    perturbed: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.actions)

@@ -70,9 +70,6 @@ class ScriptedExpert:
         error_rng: the generator of values only an injected error needs (its own stream).
         speed: cruise speed in metres per control step (the episode's speed profile).
         keep_observations: keep every step's observation (False when a recorder keeps them).
-        perturb: the chance, at each tracked waypoint with the gripper open, that the arm is
-            pushed off the path for a few steps (`_perturb`; 0: never).
-        perturb_rng: the generator of the perturbations (a stream of their own).
     """
 
     def __init__(
@@ -82,8 +79,6 @@ class ScriptedExpert:
         speed: float,
         error_rng: np.random.Generator | None = None,
         keep_observations: bool = True,
-        perturb: float = 0.0,
-        perturb_rng: np.random.Generator | None = None,
     ):
         from mani_skill.examples.motionplanning.panda.motionplanner import (
             PandaArmMotionPlanningSolver,
@@ -95,10 +90,6 @@ class ScriptedExpert:
         self.error_rng = np.random.default_rng(0) if error_rng is None else error_rng
         self.speed = speed
         self.keep_observations = keep_observations
-        if not 0.0 <= perturb < 1.0:
-            raise ValueError(f"perturb={perturb}: must be in [0, 1)")
-        self.perturb = perturb
-        self.perturb_rng = np.random.default_rng(1) if perturb_rng is None else perturb_rng
         solver = PandaArmMotionPlanningSolver(
             env,
             debug=False,
@@ -117,7 +108,6 @@ class ScriptedExpert:
         self.success: list[bool] = []
         self.fail: list[bool] = []
         self.stage: list[int] = []
-        self.perturbed: list[bool] = []  # the step's action is a perturbation, not the expert's
         self.observations: list[Any] = []
         self.truncated = False  # the env's time limit was reached
 
@@ -136,9 +126,7 @@ class ScriptedExpert:
             self.onset = self.steps
 
     # --- primitives -------------------------------------------------------------------------
-    def step(
-        self, delta: np.ndarray, gripper: float | None = None, perturbed: bool = False
-    ) -> None:
+    def step(self, delta: np.ndarray, gripper: float | None = None) -> None:
         """One control step; `terminated` is ignored (the script goes on), truncation ends it."""
         if self.truncated:
             raise EpisodeOver
@@ -149,7 +137,6 @@ class ScriptedExpert:
         )
         obs, _, _, truncated, info = self.env.step(action)
         self.actions.append(action)
-        self.perturbed.append(perturbed)
         self.success.append(bool(_to_numpy(info["success"]).reshape(-1)[0]))
         self.fail.append(bool(_to_numpy(info["fail"]).reshape(-1)[0]))
         self.stage.append(int(_to_numpy(info["stage"]).reshape(-1)[0]))
@@ -199,7 +186,6 @@ class ScriptedExpert:
             if stop_before is not None and stop_before(waypoint):
                 return True
             self.step(waypoint - self.tcp)
-            self._perturb()
         for _ in range(settle):
             error = target - self.tcp
             if np.linalg.norm(error) < tol:
@@ -223,24 +209,6 @@ class ScriptedExpert:
     def wait(self, steps: int) -> None:
         for _ in range(steps):
             self.step(np.zeros(3))
-
-    def _perturb(self) -> None:
-        """With chance `perturb` while the gripper is open, push the arm off its path for 2-6
-        steps (DART-style corrective data): a pause, or a drift of 0.5-1.5 times the cruise
-        speed in a random direction that never points down. The next waypoint is then tracked
-        from wherever the arm ended up, so the expert's actions after it are corrections; the
-        pushed steps are marked `perturbed` (they are no expert's labels)."""
-        if not self.perturb or self.gripper != OPEN or self.perturb_rng.random() >= self.perturb:
-            return
-        rng = self.perturb_rng
-        steps = int(rng.integers(2, 7))
-        delta = np.zeros(3)
-        if rng.random() < 0.5:
-            direction = rng.normal(size=3)
-            direction[2] = abs(direction[2])
-            delta = direction / np.linalg.norm(direction) * self.speed * rng.uniform(0.5, 1.5)
-        for _ in range(steps):
-            self.step(delta, perturbed=True)
 
     def jitter(self, scale: float) -> np.ndarray:
         """A random xy offset: paths differ between episodes (length-variant demonstrations)."""
@@ -271,7 +239,6 @@ def solve(
     env_index: int | None = None,
     suboptimal: bool = False,
     frames: bool = True,
-    perturb: float = 0.0,
 ) -> Episode:
     """Run the task's expert for one episode (optionally with an injected error).
 
@@ -280,12 +247,8 @@ def solve(
     `suboptimal=True` the expert first fails in one of the task's recoverable ways, then
     starts over from where it is and succeeds (the demonstration-quality experiment). With
     `frames=False` the episode carries no RGB-D frames (a step recorder around `env` keeps them).
-    With `perturb` > 0 the arm is pushed off the expert's path now and then and the expert
-    corrects (`ScriptedExpert._perturb`); the pushed steps are marked in `episode.perturbed`.
     """
     base = env.unwrapped
-    if perturb and (error is not None or suboptimal):
-        raise ValueError("perturb: only clean, optimal episodes are perturbed")
     if error is not None and error.kind not in base.error_kinds:
         raise ValueError(
             f"unknown error kind {error.kind!r} for {base.task_name}; "
@@ -303,13 +266,7 @@ def solve(
         [seed, 1 + (base.error_kinds.index(error.kind) if error else 0)]
     )
     expert = ScriptedExpert(
-        env,
-        rng,
-        expert_speed(rng, base.demonstrator),
-        error_rng,
-        keep_observations=frames,
-        perturb=perturb,
-        perturb_rng=np.random.default_rng([seed, 3]),
+        env, rng, expert_speed(rng, base.demonstrator), error_rng, keep_observations=frames
     )
     first_attempt = None
     try:
@@ -421,7 +378,6 @@ def _episode(
         rgb=rgb,
         depth=depth,
         expert_speed=expert.speed,
-        perturbed=np.asarray(expert.perturbed, dtype=bool) if any(expert.perturbed) else None,
     )
 
 

@@ -8,8 +8,7 @@ ManiSkill's other tools read it:
   `success`, `fail` (T,) bool, `rewards` (T,) float32, `env_states/...` (T + 1, D) and
   `obs/...` (T + 1, ...) with `obs/sensor_data/<camera>/rgb` uint8 and `.../depth` int16
   millimetres (gzip or lzf). AED adds `error_label` (T,) uint8 (1 from the intervention
-  on) and `stage` (T,) int16; episodes recorded with perturbations (`aed collect --perturb`)
-  also `perturbed` (T,) bool, the steps whose action pushed the arm off the expert's path.
+  on) and `stage` (T,) int16.
 - json: `env_info` (`env_id`, `env_kwargs`, `max_episode_steps`), `episodes` (one dict per
   traj: `episode_id`, `episode_seed`, `reset_kwargs`, `control_mode`, `elapsed_steps`,
   `success`, `fail`), to which AED adds `role`, `task`, `split`, `env_index`, `error_kind`,
@@ -286,8 +285,6 @@ class ShardWriter:
         group.create_dataset("rewards", data=steps.rewards.astype(np.float32))
         group.create_dataset("error_label", data=episode.error_label.astype(np.uint8))
         group.create_dataset("stage", data=episode.stage.astype(np.int16))
-        if episode.perturbed is not None:
-            group.create_dataset("perturbed", data=episode.perturbed.astype(bool))
         entry = episode_entry(episode_id, episode, steps, **extra)
         self.episodes.append(entry)
         return entry
@@ -534,8 +531,6 @@ def _episode_ref(h5_path: Path, h5: Any, entry: Any) -> EpisodeRef:
     for key in ("actions", "error_label"):
         if key not in group or len(group[key]) != steps:
             raise CollectionError(h5_path, f"{traj}/{key} is missing or not {steps} long")
-    if "perturbed" in group and len(group["perturbed"]) != steps:
-        raise CollectionError(h5_path, f"{traj}/perturbed is not {steps} long")
     if entry["role"] not in ROLES:
         raise CollectionError(
             h5_path.with_suffix(".json"), f"{traj}: unknown role {entry['role']!r}"

@@ -37,13 +37,11 @@ def recorded_episode(
     split: str = "base",
     sensor_param: dict | None = None,
     stage: np.ndarray | None = None,
-    perturbed: np.ndarray | None = None,
 ) -> tuple[Any, Any]:
     """A synthetic episode as the collector records it: (T + 1) frames and TCP poses, T
     actions, success at the last step, or (`onset` given) a `no_grasp` failure from `onset`
     (role `explore`: an exploration episode); `sensor_param` the front camera's (T + 1)
-    intrinsic_cv / extrinsic_cv; `stage` the per-step stages completed (default none);
-    `perturbed` the steps that pushed the arm off the expert's path (default none)."""
+    intrinsic_cv / extrinsic_cv; `stage` the per-step stages completed (default none)."""
     from aed_tasks import trajectory
     from aed_tasks.episode import Episode
 
@@ -67,7 +65,6 @@ def recorded_episode(
         error_kind=None if onset is None else "no_grasp",
         error_onset=onset,
         explore=role == "explore",
-        perturbed=perturbed,
     )
     recorded = trajectory.RecordedSteps(
         obs={

@@ -54,10 +54,6 @@ CASES = {
     "calibrate at alpha 2": (["calibrate", "--alphas", "2"], "alphas=(2.0,)"),
     "demo of an unknown detector": (["demo", "--detectors", "juggle"], "detectors=['juggle']"),
     "demo stage refused up front": (["demo", "--labelled", "-1"], "num_successes=-1"),
-    "collect with every step perturbed": (
-        ["collect", "--num-envs", "1", "--perturb", "1"],
-        "perturb=1.0: must be in [0, 1)",
-    ),
     "collect into a file": (
         ["collect", "--num-envs", "1", "--out", "{ws}/a_file"],
         "a_file: a file, not a folder",

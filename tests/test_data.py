@@ -16,7 +16,6 @@ from torch.utils.data import DataLoader
 from aed_models.augment import RolloutAugment
 from aed_models.data import (
     DEPTH_SCALE_MM,
-    Composition,
     EnvironmentIterations,
     EnvironmentSampler,
     EpisodeDataset,
@@ -116,34 +115,6 @@ def test_action_chunks_are_the_episodes_next_actions_from_each_read_frame(collec
                 assert torch.equal(valid, later < n - 1)
     with pytest.raises(ValueError, match="action_chunk=0: must be >= 1"):
         EnvironmentIterations(episodes, "detector", action_chunk=0)
-
-
-def test_perturbed_steps_are_no_labels(tmp_path):
-    """Steps 4-5 of every agent success pushed the arm (`perturbed`): their frames' actions
-    and every chunk entry from the first pushed step on are invalid; the rest stay valid."""
-    pushed = np.zeros(14, bool)
-    pushed[4:6] = True
-
-    def make(role, env_index, seed, steps):
-        episode, recorded = synthetic(role, env_index, seed, steps)
-        if role == "agent_success":
-            episode.perturbed = pushed[:steps]
-        return episode, recorded
-
-    root = write_synthetic_collection(
-        tmp_path / "perturbed",
-        {"demo": 1, "agent_success": 1},
-        envs=(0,),
-        steps=14,
-        make_episode=make,
-    )
-    data = EnvironmentIterations(load_episodes(root), Composition(1, 1), action_chunk=3)
-    r = data[0]["rollouts"]
-    assert torch.equal(r["action_valid"][0, :14], torch.from_numpy(~pushed))
-    assert r["chunk_valid"][0, :2].all()  # frames 0-1: 3 steps before the push
-    assert torch.equal(r["chunk_valid"][0, 2], torch.tensor([True, True, False]))
-    assert not r["chunk_valid"][0, 3:6, 1:].any() and not r["chunk_valid"][0, 4:6].any()
-    assert r["chunk_valid"][0, 6:12].all()  # after the push, the expert's corrections
 
 
 def test_augmentation_keeps_alignment_and_skips_demos(collection):

@@ -8,7 +8,6 @@ import pytest
 
 import aed_tasks
 from aed_tasks import ErrorSpec, solve
-from aed_tasks.expert import OPEN
 
 from .conftest import ALL_TASKS
 
@@ -70,19 +69,3 @@ def test_suboptimal_demonstration_fails_first_then_succeeds(task, make_env):
         retried
     )
     assert retried.first_attempt_problem == "" and not retried.success[:first].any()
-
-
-def test_perturbed_expert_is_pushed_off_its_path_and_corrects(make_env):
-    """The same episode as the clean one up to the first push; the pushed steps keep the
-    gripper open and never push down; the expert still succeeds from where it was pushed."""
-    env = make_env("AED-PickPlace-base", obs_mode="state")
-    clean = solve(env, seed=11, env_index=3)
-    pushed = solve(env, seed=11, env_index=3, perturb=0.2)
-    assert clean.perturbed is None
-    assert pushed.succeeded and pushed.perturbed is not None and pushed.perturbed.any()
-    first = int(np.argmax(pushed.perturbed))
-    np.testing.assert_array_equal(pushed.actions[:first], clean.actions[:first])
-    steps = pushed.actions[pushed.perturbed]
-    assert (steps[:, 3] == OPEN).all() and (steps[:, 2] >= 0).all()
-    with pytest.raises(ValueError, match="only clean, optimal episodes are perturbed"):
-        solve(env, seed=11, error=ErrorSpec("no_grasp"), perturb=0.2)

@@ -105,24 +105,6 @@ def test_a_refused_run_leaves_the_manifest_and_shards_as_they_were(tmp_path):
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
 
 
-@dataclass
-class PerturbingConfig(FakeConfig):
-    perturb: float = 0.0
-
-    def identity(self) -> dict[str, Any]:
-        return {"tag": self.tag, "perturb": self.perturb}
-
-
-def test_an_identity_key_added_later_reads_older_folders_as_its_default(tmp_path):
-    """A folder written before `perturb` was part of the identity was collected unperturbed:
-    it resumes with perturb=0 and refuses another value."""
-    produce(FakeConfig(tmp_path), [FakeShard(0, 0, 1)], FakeRunner, "fake")
-    two = [FakeShard(0, 0, 1), FakeShard(1, 0, 1)]
-    with pytest.raises(trajectory.CollectionError, match="perturb=0.0, this run asks 0.1"):
-        produce(PerturbingConfig(tmp_path, perturb=0.1), two, FakeRunner, "fake")
-    assert produce(PerturbingConfig(tmp_path), two, FakeRunner, "fake").episodes == 1
-
-
 def test_an_output_that_is_a_file_is_refused(tmp_path):
     (tmp_path / "file").write_text("mine")
     with pytest.raises(ValueError, match="a file, not a folder"):

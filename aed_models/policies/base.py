@@ -405,14 +405,11 @@ class DCPolicy(nn.Module):
         acted = torch.arange(mask.shape[1], device=mask.device)[None] < (lengths - 1)[:, None]
         if not acted.any():
             raise ValueError("loss: no frame with an action (every rollout has a single frame)")
-        labelled = acted  # frames whose action is the expert's (not a perturbation's)
-        if "action_valid" in rollouts:
-            labelled = acted & rollouts["action_valid"].to(acted.device)
-        pos_loss, grip_loss, grip_acc = self._chunk_loss(out, rollouts, labelled)
+        pos_loss, grip_loss, grip_acc = self._chunk_loss(out, rollouts, acted)
         total = pos_loss + grip_loss
         parts = {"pos_mse": pos_loss.item(), "grip_loss": grip_loss.item(), "grip_acc": grip_acc}
         if out["pos_chunk"].shape[-2] > 1:  # pos_mse is then the chunk's
-            parts["own_pos_mse"] = self._own_action_mse(out, actions, labelled)
+            parts["own_pos_mse"] = self._own_action_mse(out, actions, acted)
         if self.subgoal_head is not None:
             if "subgoal" not in rollouts or "proprio" not in rollouts:
                 raise ValueError(
