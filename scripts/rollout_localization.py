@@ -7,19 +7,26 @@ fails at control, one that fails only where the localizer missed fails at locali
 failure at control, where its stage-target head aimed when the TCP came closest tells whether
 it aimed wrong (the head) or did not get where it aimed (the actor). Where the gripper first
 closed (the first action with a negative gripper command) against the object tells a grasp
-that missed from one that was never tried. The follow gain tells whether the actor goes where it
-was told: the first stage's located point moved by `--shift` along x (then y), how far the
-actor's first `--steps` position actions (on the rollout's own frames) move, as a share of the
-shift (the actions' metres per unit fitted on the rollouts' own motion); 1 = it follows fully.
+that missed from one that was never tried; where the policy's own output, run on the recorded
+frames, first says close tells the same of the policy's decision on any episodes (on expert
+episodes given as `--rollouts`: whether it would close where the expert does). The follow
+gain tells whether the actor goes where it was told: the first stage's located point moved
+by `--shift` along x (then y), how far the actor's first `--steps` position actions (on the
+rollout's own frames) move, as a share of the shift (the actions' metres per unit fitted on
+the rollouts' own motion); 1 = it follows fully.
 
     python scripts/rollout_localization.py --policy runs/PressButton/policies/scan/policy.pt \
         --rollouts runs/PressButton/rollouts/scan/novel --demos runs/PressButton/data/novel
+
+On the agent's expert successes instead of rollouts, add `--roles agent_success` (e.g.
+`--rollouts runs/PressButton/data/novel-labelled`).
 """
 
 from __future__ import annotations
 
 import json
 import logging
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +52,11 @@ class Config:
     """Its rollouts (`aed rollout`)."""
     demos: Path
     """The collection holding the rollouts' demonstrations."""
+    roles: tuple[str, ...] = ()
+    """Read only these roles of `rollouts` (e.g. agent_success of an expert collection; none:
+    all)."""
+    per_env: int = 0
+    """Read at most this many episodes of each environment, in collection order (0: all)."""
     target: str = "button"
     """The task object (an actor or articulation of the env states) the first stage acts on."""
     num_demos: int = 5
@@ -61,12 +73,20 @@ def main(cfg: Config) -> dict:
     policy = load_policy(cfg.policy)
     if policy.localizer is None:
         raise ValueError(f"{cfg.policy}: a policy without a target localizer")
-    refs = list(trajectory.scan_collection(cfg.rollouts).episodes())
+    refs = [
+        ref
+        for ref in trajectory.scan_collection(cfg.rollouts).episodes()
+        if not cfg.roles or ref.role in cfg.roles
+    ]
+    if cfg.per_env:
+        refs = first_per_env(refs, cfg.per_env)
+    if not refs:
+        raise ValueError(f"{cfg.rollouts}: no episodes of roles {cfg.roles}")
     demos = Demonstrations(cfg.demos, refs[0].split, cfg.num_demos)
     reader = EpisodeReader()
     located, approach, success, envs, aimed, closed_at = [], [], [], [], [], []
     close_offsets, responses, commanded, moved = [], [], [], []
-    close_heights, close_steps = [], []
+    close_heights, close_steps, recorded_closes, own_closes = [], [], [], []
     for ref in sorted(refs, key=lambda r: r.env_index):
         sequence = reader.read(ref)
         points = policy.localizer.locate(
@@ -80,6 +100,9 @@ def main(cfg: Config) -> dict:
         target, tcp_xyz, actions = read_track(ref, cfg.target)
         xy, tcp = target[:2], tcp_xyz[:, :2]
         close = first_close(target, tcp_xyz, actions)
+        own = run.policy.to_action(outputs["pos"], outputs["grip"])[0, :-1].numpy()
+        recorded_closes.append(close)
+        own_closes.append(first_close(target, tcp_xyz, own))
         if close is not None:
             close_steps.append(close[0])
             close_heights.append(float(close[1][2]))
@@ -122,6 +145,7 @@ def main(cfg: Config) -> dict:
             },
             **close_timing(close_heights, close_steps),
         },
+        "own_first_close": own_first_close(recorded_closes, own_closes),
         "expert_first_close": expert_first_close(
             [r for env in demos.envs() for r in demos.refs[env]], cfg.target
         ),
@@ -167,6 +191,17 @@ def main(cfg: Config) -> dict:
     return result
 
 
+def first_per_env(refs: list, n: int) -> list:
+    """The first `n` episodes of each environment, in the given order."""
+    taken: Counter = Counter()
+    kept = []
+    for ref in refs:
+        if taken[ref.env_index] < n:
+            taken[ref.env_index] += 1
+            kept.append(ref)
+    return kept
+
+
 def read_track(ref, target: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """An episode's object position in its first frame (3,), TCP positions (T + 1, 3) and
     actions (T, 4)."""
@@ -201,21 +236,33 @@ def close_timing(heights: list[float], steps: list[int]) -> dict:
     }
 
 
-def expert_first_close(refs: list, target: str) -> dict:
-    """Where and when the demonstrations (the expert) first close the gripper, as
-    `close_timing` (the TCP's horizontal distance to the object beside it)."""
-    heights, steps, distances = [], [], []
-    for ref in refs:
-        close = first_close(*read_track(ref, target))
-        if close is not None:
-            steps.append(close[0])
-            heights.append(float(close[1][2]))
-            distances.append(float(np.linalg.norm(close[1][:2])))
+def close_summary(closes: list[tuple[int, np.ndarray] | None]) -> dict:
+    """Of episodes' first closes (`first_close`, None: never closed): how many closed, the
+    TCP's median horizontal distance to the object there, and `close_timing`."""
+    closed = [c for c in closes if c is not None]
+    distances = [float(np.linalg.norm(offset[:2])) for _, offset in closed]
     return {
-        "episodes": len(refs),
-        "closed": len(steps),
+        "episodes": len(closes),
+        "closed": len(closed),
         "median_cm": 100 * float(np.median(distances)) if distances else None,
-        **close_timing(heights, steps),
+        **close_timing([float(offset[2]) for _, offset in closed], [s for s, _ in closed]),
+    }
+
+
+def expert_first_close(refs: list, target: str) -> dict:
+    """Where and when the demonstrations (the expert) first close the gripper."""
+    return close_summary([first_close(*read_track(ref, target)) for ref in refs])
+
+
+def own_first_close(recorded: list, own: list) -> dict:
+    """Where and when the policy's own output, run on each episode's recorded frames, first
+    says close (`close_summary`), and by how many steps before the recorded first close
+    (median over the episodes where both close). On expert episodes given as `--rollouts`
+    this is where the policy would have closed on the expert's way down."""
+    leads = [r[0] - o[0] for r, o in zip(recorded, own, strict=True) if r and o]
+    return {
+        **close_summary(own),
+        "median_steps_before_recorded": float(np.median(leads)) if leads else None,
     }
 
 

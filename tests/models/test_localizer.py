@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -388,6 +389,9 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
         "episodes": 8 * 3, "closed": 0, "median_cm": None, "median_height_cm": None,
         "median_step": None,
     }  # fmt: skip
+    own = diagnosis["own_first_close"]  # the policy's own gripper output on those frames
+    assert own["episodes"] == 48 and 0 <= own["closed"] <= 48
+    assert own["median_steps_before_recorded"] is None  # the recorded episodes never close
     assert all(r["first_close_cm"] is None for r in per_rollout)
     gain = diagnosis["follow_gain"]
     assert (gain["shift_cm"], gain["steps"]) == (5.0, 30)
@@ -417,6 +421,15 @@ def test_first_close_is_the_first_closed_command_and_the_tcp_offset_there():
     step, offset = first_close(np.array([0.2, 0.0, 0.05]), tcp, actions)
     assert step == 1 and np.allclose(offset, [-0.1, 0.0, 0.15])
     assert first_close(np.zeros(3), tcp, np.abs(actions)) is None
+    script = load_script("rollout_localization")
+    late = (3, np.array([0.0, 0.0, 0.004]))
+    early = (1, np.array([0.03, 0.04, 0.06]))
+    own = script.own_first_close([late, late, None], [early, None, early])
+    assert own["episodes"] == 3 and own["closed"] == 2 and own["median_cm"] == pytest.approx(5.0)
+    assert own["median_height_cm"] == pytest.approx(6.0) and own["median_step"] == 1.0
+    assert own["median_steps_before_recorded"] == 2.0  # only the first episode has both
+    refs = [SimpleNamespace(env_index=e) for e in (0, 1, 0, 0, 1, 2)]
+    assert script.first_per_env(refs, 2) == [refs[i] for i in (0, 1, 2, 4, 5)]
 
 
 def test_the_probe_script_measures_novel_errors(localizer_path, collections, tmp_path):
