@@ -81,12 +81,13 @@ def main(cfg: Config) -> dict:
     if cfg.per_env:
         refs = first_per_env(refs, cfg.per_env)
     if not refs:
-        raise ValueError(f"{cfg.rollouts}: no episodes of roles {cfg.roles}")
+        roles = f" of roles {list(cfg.roles)}" if cfg.roles else ""
+        raise ValueError(f"{cfg.rollouts}: no episodes{roles}")
     demos = Demonstrations(cfg.demos, refs[0].split, cfg.num_demos)
     reader = EpisodeReader()
     located, approach, success, envs, aimed, closed_at = [], [], [], [], [], []
     close_offsets, responses, commanded, moved = [], [], [], []
-    close_heights, close_steps, recorded_closes, own_closes = [], [], [], []
+    recorded_closes, own_closes = [], []
     for ref in sorted(refs, key=lambda r: r.env_index):
         sequence = reader.read(ref)
         points = policy.localizer.locate(
@@ -103,9 +104,6 @@ def main(cfg: Config) -> dict:
         own = run.policy.to_action(outputs["pos"], outputs["grip"])[0, :-1].numpy()
         recorded_closes.append(close)
         own_closes.append(first_close(target, tcp_xyz, own))
-        if close is not None:
-            close_steps.append(close[0])
-            close_heights.append(float(close[1][2]))
         steps = min(cfg.steps, len(actions))
         commanded.append(actions[:steps, :2].sum(0))
         moved.append(tcp[steps] - tcp[0])
@@ -143,7 +141,7 @@ def main(cfg: Config) -> dict:
                 axis: 100 * float(np.median(close_offsets[:, i])) if len(closed) else None
                 for i, axis in enumerate("xy")
             },
-            **close_timing(close_heights, close_steps),
+            **close_timing(recorded_closes),
         },
         "own_first_close": own_first_close(recorded_closes, own_closes),
         "expert_first_close": expert_first_close(
@@ -227,12 +225,13 @@ def first_close(
     return int(closes[0]), tcp[closes[0]] - point
 
 
-def close_timing(heights: list[float], steps: list[int]) -> dict:
-    """The median height of the TCP above the object's centre (cm) and the median step at a
-    set of first closes (None where there is none)."""
+def close_timing(closes: list[tuple[int, np.ndarray] | None]) -> dict:
+    """The median height of the TCP above the object's centre (cm) and the median step at
+    episodes' first closes (`first_close`; None: never closed, skipped)."""
+    closed = [c for c in closes if c is not None]
     return {
-        "median_height_cm": 100 * float(np.median(heights)) if heights else None,
-        "median_step": float(np.median(steps)) if steps else None,
+        "median_height_cm": 100 * float(np.median([o[2] for _, o in closed])) if closed else None,
+        "median_step": float(np.median([s for s, _ in closed])) if closed else None,
     }
 
 
@@ -245,7 +244,7 @@ def close_summary(closes: list[tuple[int, np.ndarray] | None]) -> dict:
         "episodes": len(closes),
         "closed": len(closed),
         "median_cm": 100 * float(np.median(distances)) if distances else None,
-        **close_timing([float(offset[2]) for _, offset in closed], [s for s, _ in closed]),
+        **close_timing(closed),
     }
 
 

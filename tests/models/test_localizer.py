@@ -415,13 +415,13 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
 
 
 def test_first_close_is_the_first_closed_command_and_the_tcp_offset_there():
-    first_close = load_script("rollout_localization").first_close
+    script = load_script("rollout_localization")
+    first_close = script.first_close
     tcp = np.array([[0.0, 0.0, 0.3], [0.1, 0.0, 0.2], [0.2, 0.0, 0.1], [0.2, 0.0, 0.1]])
     actions = np.array([[0, 0, 0, 1.0], [0, 0, 0, -1.0], [0, 0, 0, -1.0]])
     step, offset = first_close(np.array([0.2, 0.0, 0.05]), tcp, actions)
     assert step == 1 and np.allclose(offset, [-0.1, 0.0, 0.15])
     assert first_close(np.zeros(3), tcp, np.abs(actions)) is None
-    script = load_script("rollout_localization")
     late = (3, np.array([0.0, 0.0, 0.004]))
     early = (1, np.array([0.03, 0.04, 0.06]))
     own = script.own_first_close([late, late, None], [early, None, early])
