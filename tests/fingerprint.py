@@ -282,8 +282,6 @@ def tiny_policy_file(root: Path) -> Path:
         visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
         localizer=None,
         subgoal_head="linear",  # the pointer head needs a localizer
-        grip_head="actor",  # the located heads point at located targets too
-        position_head="actor",
         action_chunk=1,  # the actor of then
     )
     path = root / "tiny_policy" / "policy.pt"

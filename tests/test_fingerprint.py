@@ -34,11 +34,6 @@ POINTER = (
     "(plus a linear residual), and its prediction reaches the position action through a learned "
     "per-axis gain: the linear head's actor ignored the located x"
 )
-LOCATED_HEADS = (
-    "the mini policies' gripper and position come from the offsets to the located targets, the "
-    "finger joints and the stage choice alone: the actor's close decision, read off the scene's "
-    "features, held in the training scenes only"
-)
 MINI_ENVS = (
     "the mini protocol is #20's recipe: up to 23 training + 4 calibration base environments and "
     "up to 18 novel ones, a smaller catalogue giving all it has"
@@ -140,17 +135,6 @@ INTENDED = [
         )
         for name in ("naive_dc", "dct", "scan")
         for profile in fingerprint.PROFILES
-    ),
-    *(
-        (
-            ("recipes", f"model/{name}/{profile}", head),
-            ABSENT,
-            "located" if profile == "mini" else "actor",
-            LOCATED_HEADS,
-        )
-        for name in ("naive_dc", "dct", "scan")
-        for profile in fingerprint.PROFILES
-        for head in ("grip_head", "position_head")
     ),
 ]
 

@@ -51,7 +51,6 @@ logger = logging.getLogger(__name__)
 
 ACTION_DIM = 4  # pd_ee_delta_pos: dx, dy, dz in [-1, 1], gripper +1 open / -1 closed
 SUBGOAL_SCALE_M = 0.1  # subgoal offsets are learned in units of 10 cm (the reach of a stage)
-FINGER_OPEN_M = 0.04  # a Panda finger joint's travel: the located grip head reads it as 0..1
 ENSEMBLE_DECAY = 0.01  # ACT's temporal ensembling: weight exp(-0.01 i), i = 0 the oldest
 
 
@@ -109,60 +108,11 @@ class PointerSubgoalHead(nn.Module):
         nn.init.zeros_(self.residual.weight)
         nn.init.zeros_(self.residual.bias)
 
-    def stage(self, actor_input: torch.Tensor) -> torch.Tensor:
-        """actor_input (..., in_dim) -> the weight of each located point (..., K), summing to 1."""
-        return torch.softmax(self.select(actor_input), dim=-1)
-
     def forward(self, actor_input: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
         """actor_input (..., in_dim), offsets (..., 3K) -> predicted offset (..., 3)."""
-        weights = self.stage(actor_input)
+        weights = torch.softmax(self.select(actor_input), dim=-1)
         points = offsets.unflatten(-1, (self.num_targets, 3))
         return (weights[..., None] * points).sum(-2) + self.residual(actor_input)
-
-
-def located_input(
-    offsets: torch.Tensor, fingers: torch.Tensor, stage: torch.Tensor
-) -> torch.Tensor:
-    """What the located heads read: the offsets from the TCP to the K located points (..., 3K),
-    the finger joints (..., 2; metres, read as 0..1) and the pointer head's stage choice
-    (..., K; detached, so only the stage-target loss teaches it)."""
-    return torch.cat([offsets, fingers / FINGER_OPEN_M, stage.detach()], dim=-1)
-
-
-class LocatedGripHead(nn.Module):
-    """Gripper logits for the `chunk` steps from this one from geometry alone (`located_input`),
-    through MLP [4K + 2, 64, 64, chunk]. Without the scene's features it cannot tie the close
-    to a training scene's look, only to where the TCP is beside the targets."""
-
-    def __init__(self, num_targets: int, chunk: int, hidden: int = 64):
-        super().__init__()
-        self.chunk = chunk
-        self.body = nn.Sequential(
-            mlp([4 * num_targets + 2, hidden, hidden]), nn.Linear(hidden, chunk)
-        )
-
-    def forward(
-        self, offsets: torch.Tensor, fingers: torch.Tensor, stage: torch.Tensor
-    ) -> torch.Tensor:
-        """-> logits (..., C, 1)."""
-        return self.body(located_input(offsets, fingers, stage))[..., None]
-
-
-class LocatedPositionHead(nn.Module):
-    """Position actions for the `chunk` steps from this one from geometry alone
-    (`located_input`), through MLP [4K + 2, 128, 128, 3 chunk]."""
-
-    def __init__(self, num_targets: int, chunk: int, hidden: int = 128):
-        super().__init__()
-        self.body = nn.Sequential(
-            mlp([4 * num_targets + 2, hidden, hidden]), nn.Linear(hidden, 3 * chunk)
-        )
-
-    def forward(
-        self, offsets: torch.Tensor, fingers: torch.Tensor, stage: torch.Tensor
-    ) -> torch.Tensor:
-        """-> standardised positions (..., C, 3)."""
-        return self.body(located_input(offsets, fingers, stage)).unflatten(-1, (-1, 3))
 
 
 def thin_sequences(
@@ -240,13 +190,6 @@ class DCPolicy(nn.Module):
             config.actor_hidden,
             config.action_chunk,
         )
-        self.grip_head = self.position_head = None
-        if config.grip_head == "located":
-            self.grip_head = LocatedGripHead(config.localizer.num_targets, config.action_chunk)
-        if config.position_head == "located":
-            self.position_head = LocatedPositionHead(
-                config.localizer.num_targets, config.action_chunk
-            )
         self.inverse_dynamics = None
         if config.inverse_dynamics:
             d = config.visual.out_dim
@@ -408,11 +351,10 @@ class DCPolicy(nn.Module):
         features."""
         f, feats = self._features(rollouts, demos)
         located = self._rollout_located(rollouts, demos)
-        offsets = fingers = None
+        offsets = None
         if located is not None:
-            proprio = rollouts["proprio"].to(located.device).float()
-            offsets, fingers = self.located_offsets(located, proprio), proprio[..., 3:]
-        pos, grip, subgoal = self._actor(feats.history, feats.task, offsets, fingers)
+            offsets = self.located_offsets(located, rollouts["proprio"].to(located.device))
+        pos, grip, subgoal = self._actor(feats.history, feats.task, offsets)
         out = {
             "pos": pos[..., 0, :],
             "grip": grip[..., 0, :],
@@ -427,19 +369,13 @@ class DCPolicy(nn.Module):
         return out
 
     def _actor(
-        self,
-        history: torch.Tensor,
-        task: torch.Tensor,
-        offsets: torch.Tensor | None = None,
-        fingers: torch.Tensor | None = None,
+        self, history: torch.Tensor, task: torch.Tensor, offsets: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """[f_h, f_zeta (, offsets to the located points)] -> (pos (..., C, 3), gripper
         (..., C, 1) for the C = `action_chunk` steps from this one, subgoal offset or None).
         With a subgoal head, the actor also reads the predicted offset: moving toward a target
         it was told is an easy map. The pointer head's offset also reaches every step of the
-        position chunk through a learned per-axis gain, one weight from the action. With located
-        heads (which read the finger joints (..., 2) too), the gripper and / or the position
-        (plus that gain path) come from them instead."""
+        position chunk through a learned per-axis gain, one weight from the action."""
         parts = [history, task] if offsets is None else [history, task, offsets]
         actor_input = torch.cat(parts, dim=-1)
         if self.subgoal_head is None:
@@ -450,11 +386,6 @@ class DCPolicy(nn.Module):
             subgoal = self.subgoal_head(actor_input, offsets)
         pos, grip = self.actor(torch.cat([actor_input, subgoal], dim=-1))
         if self.subgoal_gain is not None:
-            pos = pos + (self.subgoal_gain * subgoal)[..., None, :]
-        if self.grip_head is not None:
-            grip = self.grip_head(offsets, fingers, self.subgoal_head.stage(actor_input))
-        if self.position_head is not None:
-            pos = self.position_head(offsets, fingers, self.subgoal_head.stage(actor_input))
             pos = pos + (self.subgoal_gain * subgoal)[..., None, :]
         return pos, grip, subgoal
 
@@ -601,15 +532,14 @@ class DCPolicy(nn.Module):
             history, task, self._online["state"] = self.step(
                 f_t, self._online["memory"], self._online["state"]
             )
-            offsets = fingers = None
+            offsets = None
             if self.localizer is not None:
                 if self._online["located"] is None:  # the rollout's first frame
                     self._online["located"] = self.localizer.locate(
                         frame[None], self._online["queries"]
                     ).flatten(1)
                 offsets = self.located_offsets(self._online["located"], proprio)
-                fingers = proprio[..., 3:]
-            pos, grip, _ = self._actor(history, task, offsets, fingers)
+            pos, grip, _ = self._actor(history, task, offsets)
             pos, grip = self._ensemble(pos[0], grip[0])
             action = self.to_action(pos, grip)
         self._online.update(history=history[0], task=task[0], t=self._online["t"] + 1)

@@ -38,12 +38,6 @@ class PolicyConfig:
             among the offsets to the located points plus a linear residual, whose prediction
             also enters the position action through a learned per-axis gain (under `mini`,
             where the actor otherwise ignored the located coordinates).
-        grip_head: `actor`, the gripper from the actor; or `located` (needs the pointer head):
-            from the offsets to the located points, the finger joints and the pointer's stage
-            choice alone (`LocatedGripHead`).
-        position_head: `actor`, the position from the actor; or `located` (needs the pointer
-            head): from what the located grip head reads (`LocatedPositionHead`), plus the
-            pointer's gain path.
         frozen_encoder: the visual head is the task's scene encoder (`aed train-encoder`, trained
             to say where things are), frozen; training reads its cached per-frame features. The
             paper trains its heads end to end (off under `paper`, on under `mini`).
@@ -79,8 +73,6 @@ class PolicyConfig:
     demo_frames: int = 0
     subgoal_weight: float = 0.0
     subgoal_head: Literal["linear", "pointer"] = "linear"
-    grip_head: Literal["actor", "located"] = "actor"
-    position_head: Literal["actor", "located"] = "actor"
     frozen_encoder: bool = False
     localizer: LocalizerConfig | None = None
     action_chunk: int = 1
@@ -116,16 +108,6 @@ class PolicyConfig:
             raise ValueError(
                 "localizer needs proprio=True (the policy reads the offsets from the TCP)"
             )
-        for name in ("grip_head", "position_head"):
-            if getattr(self, name) not in ("actor", "located"):
-                raise ValueError(f"{name}={getattr(self, name)!r}: actor or located")
-        if "located" in (self.grip_head, self.position_head) and not (
-            self.subgoal_weight > 0 and self.subgoal_head == "pointer"
-        ):
-            raise ValueError(
-                "a located grip or position head needs the pointer stage-target head "
-                "(subgoal_weight > 0, subgoal_head='pointer'): it reads its stage choice"
-            )
         if self.demo_frames < 0 or self.demo_frames == 1:
             raise ValueError(f"demo_frames={self.demo_frames}: 0 (all) or >= 2")
         if self.action_chunk < 1:
@@ -137,8 +119,7 @@ class PolicyConfig:
     def preset(cls: type[C], profile: str) -> C:
         """The sizes of a profile: `paper` the paper's (ResNet18 head, RGB-D only); `mini` and
         `demo` CPU-sized (the task's frozen scene encoder as the visual head, proprioception, a
-        pointer stage-target head, the task's target localizer and located grip and position
-        heads, the class's action chunks)."""
+        pointer stage-target head, the task's target localizer, the class's action chunks)."""
         if check_profile(profile) == "paper":
             return cls(visual=VisualHeadConfig(arch="resnet18", out_dim=256, dropout=0.5))
         small = VisualHeadConfig(arch="small_cnn", out_dim=256, dropout=0.0, width=32)
@@ -147,8 +128,6 @@ class PolicyConfig:
             proprio=True,
             subgoal_weight=1.0,
             subgoal_head="pointer",
-            grip_head="located",
-            position_head="located",
             frozen_encoder=True,
             localizer=LocalizerConfig.preset(profile),
             action_chunk=cls.mini_action_chunk,

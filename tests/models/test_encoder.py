@@ -229,8 +229,6 @@ def test_policies_train_on_a_frozen_encoder(name, encoder_path, collection, tmp_
         frozen_encoder=True,
         localizer=None,
         subgoal_head="linear",  # the pointer head needs a localizer
-        grip_head="actor",  # the located heads point at located targets too
-        position_head="actor",
         **tiny.get(name, {}),
     )
     cfg = TrainPolicyConfig.from_preset(

@@ -44,8 +44,6 @@ def tiny_config(name: str, profile: str = "mini"):
         frozen_encoder=False,
         localizer=None,
         subgoal_head="linear",  # the pointer head points at located targets
-        grip_head="actor",  # the located heads point at located targets too
-        position_head="actor",
         **TINY[name],
     )
 
@@ -515,8 +513,6 @@ def test_the_pointer_head_chooses_among_the_located_offsets():
         head.select[-1].bias.zero_()  # undecided: halfway, whatever the input
     assert torch.allclose(head(torch.randn(1, 10), offsets), torch.tensor([[-1.5, -1.5, -1.5]]))
     assert POLICIES.preset("scan", "mini").subgoal_head == "pointer"
-    assert POLICIES.preset("scan", "mini").position_head == "located"
-    assert POLICIES.preset("scan", "paper").grip_head == "actor"
     with pytest.raises(ValueError, match="needs a localizer"):
         POLICIES.preset("scan", "mini", localizer=None)
     with pytest.raises(ValueError, match="linear or pointer"):
