@@ -101,7 +101,7 @@ def main(cfg: Config) -> dict:
         target, tcp_xyz, actions = read_track(ref, cfg.target)
         xy, tcp = target[:2], tcp_xyz[:, :2]
         close = first_close(target, tcp_xyz, actions)
-        own = run.policy.to_action(outputs["pos"], outputs["grip"])[0, :-1].numpy()
+        own = run.policy.to_action(*run.online_actions(outputs))[0, :-1].numpy()
         recorded_closes.append(close)
         own_closes.append(first_close(target, tcp_xyz, own))
         steps = min(cfg.steps, len(actions))
@@ -254,8 +254,8 @@ def expert_first_close(refs: list, target: str) -> dict:
 
 
 def own_first_close(recorded: list, own: list) -> dict:
-    """Where and when the policy's own output, run on each episode's recorded frames, first
-    says close (`close_summary`), and by how many steps before the recorded first close
+    """Where and when the policy's own action (its chunks' temporal ensemble, as online), run
+    on each episode's recorded frames, first says close (`close_summary`), and by how many steps before the recorded first close
     (median over the episodes where both close). On expert episodes given as `--rollouts`
     this is where the policy would have closed on the expert's way down."""
     leads = [r[0] - o[0] for r, o in zip(recorded, own, strict=True) if r and o]
@@ -277,6 +277,11 @@ class PolicyRun:
     def __call__(self, points: torch.Tensor) -> dict[str, torch.Tensor]:
         located = points.flatten(1)[:, None].expand(-1, self.rollout["mask"].shape[1], -1)
         return self.policy({**self.rollout, "located": located}, self.demos)
+
+    def online_actions(self, outputs: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """What `act` would take at each step, (1, T, 3) and (1, T, 1): the temporal ensemble
+        of the last `action_chunk` chunks, as online."""
+        return self.policy.ensemble_chunks(outputs["pos_chunk"], outputs["grip_chunk"])
 
 
 def action_response(
