@@ -282,10 +282,6 @@ def tiny_policy_file(root: Path) -> Path:
         visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
         localizer=None,
         subgoal_head="linear",  # the pointer head needs a localizer
-        grip_head="actor",  # the located heads point at located targets too
-        position_head="actor",
-        stage_input="actor",  # the geometric stage choice is the pointer head's
-        stage_weight=0.0,
         action_chunk=1,  # the actor of then
     )
     path = root / "tiny_policy" / "policy.pt"

@@ -34,16 +34,6 @@ POINTER = (
     "(plus a linear residual), and its prediction reaches the position action through a learned "
     "per-axis gain: the linear head's actor ignored the located x"
 )
-LOCATED_HEADS = (
-    "the mini policies' gripper and position come from the offsets to the located targets, the "
-    "finger joints and the stage choice alone: the actor's close decision, read off the scene's "
-    "features, held in the training scenes only"
-)
-GEOMETRIC_STAGE = (
-    "the mini policies' stage choice reads the offsets to the located targets and the finger "
-    "joints alone, taught each frame's stage by a cross-entropy: read off the scene's features, "
-    "it left the grasp stage from the first steps in half the novel Back to Box scenes"
-)
 MINI_ENVS = (
     "the mini protocol is #20's recipe: up to 23 training + 4 calibration base environments and "
     "up to 18 novel ones, a smaller catalogue giving all it has"
@@ -145,28 +135,6 @@ INTENDED = [
         )
         for name in ("naive_dc", "dct", "scan")
         for profile in fingerprint.PROFILES
-    ),
-    *(
-        (
-            ("recipes", f"model/{name}/{profile}", head),
-            ABSENT,
-            "located" if profile == "mini" else "actor",
-            LOCATED_HEADS,
-        )
-        for name in ("naive_dc", "dct", "scan")
-        for profile in fingerprint.PROFILES
-        for head in ("grip_head", "position_head")
-    ),
-    *(
-        (
-            ("recipes", f"model/{name}/{profile}", field),
-            ABSENT,
-            (mini if profile == "mini" else paper),
-            GEOMETRIC_STAGE,
-        )
-        for name in ("naive_dc", "dct", "scan")
-        for profile in fingerprint.PROFILES
-        for field, mini, paper in (("stage_input", "geometry", "actor"), ("stage_weight", 1.0, 0.0))
     ),
 ]
 

@@ -102,10 +102,6 @@ def setting(tmp_path_factory) -> dict:
             visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
             localizer=None,
             subgoal_head="linear",  # the pointer head needs a localizer
-            grip_head="actor",  # the located heads point at located targets too
-            position_head="actor",
-            stage_input="actor",  # the geometric stage choice is the pointer head's
-            stage_weight=0.0,
         ),
     )
     layout.policy(TASK, "naive_dc").parent.mkdir(parents=True)

@@ -51,7 +51,6 @@ logger = logging.getLogger(__name__)
 
 ACTION_DIM = 4  # pd_ee_delta_pos: dx, dy, dz in [-1, 1], gripper +1 open / -1 closed
 SUBGOAL_SCALE_M = 0.1  # subgoal offsets are learned in units of 10 cm (the reach of a stage)
-FINGER_OPEN_M = 0.04  # a Panda finger joint's travel: read as 0..1
 ENSEMBLE_DECAY = 0.01  # ACT's temporal ensembling: weight exp(-0.01 i), i = 0 the oldest
 
 
@@ -97,89 +96,23 @@ class PointerSubgoalHead(nn.Module):
 
     A linear map from [f_h, f_zeta, offsets] may lean on what TCP and time already explain and
     ignore a located coordinate; a choice among the offsets carries each one through unscaled
-    and only has to learn which stage it is in. The choice reads `choice_dim` inputs: the
-    actor's, or geometry alone (`stage_geometry`)."""
+    and only has to learn which stage it is in."""
 
-    def __init__(self, in_dim: int, num_targets: int, choice_dim: int, hidden: int = 64):
+    def __init__(self, in_dim: int, num_targets: int, hidden: int = 64):
         super().__init__()
         self.num_targets = num_targets
         self.select = nn.Sequential(
-            nn.Linear(choice_dim, hidden), nn.ReLU(), nn.Linear(hidden, num_targets)
+            nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, num_targets)
         )
         self.residual = nn.Linear(in_dim, 3)
         nn.init.zeros_(self.residual.weight)
         nn.init.zeros_(self.residual.bias)
 
-    def forward(
-        self, actor_input: torch.Tensor, offsets: torch.Tensor, choice_input: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """actor_input (..., in_dim), offsets (..., 3K), choice_input (..., choice_dim) ->
-        predicted offset (..., 3) and the stage choice's logits (..., K)."""
+    def forward(self, actor_input: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
+        """actor_input (..., in_dim), offsets (..., 3K) -> predicted offset (..., 3)."""
+        weights = torch.softmax(self.select(actor_input), dim=-1)
         points = offsets.unflatten(-1, (self.num_targets, 3))
-        logits = self.select(choice_input)
-        weights = torch.softmax(logits, dim=-1)
-        return (weights[..., None] * points).sum(-2) + self.residual(actor_input), logits
-
-
-def stage_labels(subgoal: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Per-frame stage targets (B, L, 3) of padded episodes -> each frame's stage index (B, L):
-    how many times the target changed before it (`stage_subgoals` holds it constant within a
-    stage); -1 on padding."""
-    change = torch.zeros(mask.shape, dtype=torch.long, device=subgoal.device)
-    change[:, 1:] = (subgoal[:, 1:] != subgoal[:, :-1]).any(-1).long()
-    return torch.where(mask, change.cumsum(1), torch.full_like(change, -1))
-
-
-def stage_geometry(offsets: torch.Tensor, fingers: torch.Tensor) -> torch.Tensor:
-    """What a geometric stage choice reads: the offsets from the TCP to the K located points
-    (..., 3K) and the finger joints (..., 2; metres, read as 0..1). No scene features: which
-    stage it is follows from where the hand is beside the targets and whether it holds."""
-    return torch.cat([offsets, fingers / FINGER_OPEN_M], dim=-1)
-
-
-def located_input(
-    offsets: torch.Tensor, fingers: torch.Tensor, stage: torch.Tensor
-) -> torch.Tensor:
-    """What the located heads read: the offsets from the TCP to the K located points (..., 3K),
-    the finger joints (..., 2; metres, read as 0..1) and the pointer head's stage choice
-    (..., K; detached, so only the stage-target loss teaches it)."""
-    return torch.cat([offsets, fingers / FINGER_OPEN_M, stage.detach()], dim=-1)
-
-
-class LocatedGripHead(nn.Module):
-    """Gripper logits for the `chunk` steps from this one from geometry alone (`located_input`),
-    through MLP [4K + 2, 64, 64, chunk]. Without the scene's features it cannot tie the close
-    to a training scene's look, only to where the TCP is beside the targets."""
-
-    def __init__(self, num_targets: int, chunk: int, hidden: int = 64):
-        super().__init__()
-        self.chunk = chunk
-        self.body = nn.Sequential(
-            mlp([4 * num_targets + 2, hidden, hidden]), nn.Linear(hidden, chunk)
-        )
-
-    def forward(
-        self, offsets: torch.Tensor, fingers: torch.Tensor, stage: torch.Tensor
-    ) -> torch.Tensor:
-        """-> logits (..., C, 1)."""
-        return self.body(located_input(offsets, fingers, stage))[..., None]
-
-
-class LocatedPositionHead(nn.Module):
-    """Position actions for the `chunk` steps from this one from geometry alone
-    (`located_input`), through MLP [4K + 2, 128, 128, 3 chunk]."""
-
-    def __init__(self, num_targets: int, chunk: int, hidden: int = 128):
-        super().__init__()
-        self.body = nn.Sequential(
-            mlp([4 * num_targets + 2, hidden, hidden]), nn.Linear(hidden, 3 * chunk)
-        )
-
-    def forward(
-        self, offsets: torch.Tensor, fingers: torch.Tensor, stage: torch.Tensor
-    ) -> torch.Tensor:
-        """-> standardised positions (..., C, 3)."""
-        return self.body(located_input(offsets, fingers, stage)).unflatten(-1, (-1, 3))
+        return (weights[..., None] * points).sum(-2) + self.residual(actor_input)
 
 
 def thin_sequences(
@@ -248,9 +181,7 @@ class DCPolicy(nn.Module):
         self.subgoal_gain = None  # pointer head: per-axis gain from the predicted offset to pos
         head_in = history_dim + task_dim + located_dim
         if config.subgoal_weight > 0 and config.subgoal_head == "pointer":
-            k = config.localizer.num_targets
-            choice_dim = head_in if config.stage_input == "actor" else 3 * k + 2
-            self.subgoal_head = PointerSubgoalHead(head_in, k, choice_dim)
+            self.subgoal_head = PointerSubgoalHead(head_in, config.localizer.num_targets)
             self.subgoal_gain = nn.Parameter(torch.zeros(3))
         elif config.subgoal_weight > 0:
             self.subgoal_head = nn.Linear(head_in, 3)
@@ -259,13 +190,6 @@ class DCPolicy(nn.Module):
             config.actor_hidden,
             config.action_chunk,
         )
-        self.grip_head = self.position_head = None
-        if config.grip_head == "located":
-            self.grip_head = LocatedGripHead(config.localizer.num_targets, config.action_chunk)
-        if config.position_head == "located":
-            self.position_head = LocatedPositionHead(
-                config.localizer.num_targets, config.action_chunk
-            )
         self.inverse_dynamics = None
         if config.inverse_dynamics:
             d = config.visual.out_dim
@@ -427,11 +351,10 @@ class DCPolicy(nn.Module):
         features."""
         f, feats = self._features(rollouts, demos)
         located = self._rollout_located(rollouts, demos)
-        offsets = fingers = None
+        offsets = None
         if located is not None:
-            proprio = rollouts["proprio"].to(located.device).float()
-            offsets, fingers = self.located_offsets(located, proprio), proprio[..., 3:]
-        pos, grip, subgoal, stage_logits = self._actor(feats.history, feats.task, offsets, fingers)
+            offsets = self.located_offsets(located, rollouts["proprio"].to(located.device))
+        pos, grip, subgoal = self._actor(feats.history, feats.task, offsets)
         out = {
             "pos": pos[..., 0, :],
             "grip": grip[..., 0, :],
@@ -443,45 +366,28 @@ class DCPolicy(nn.Module):
         }
         if subgoal is not None:
             out["subgoal"] = subgoal
-        if stage_logits is not None:
-            out["stage_logits"] = stage_logits
         return out
 
     def _actor(
-        self,
-        history: torch.Tensor,
-        task: torch.Tensor,
-        offsets: torch.Tensor | None = None,
-        fingers: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+        self, history: torch.Tensor, task: torch.Tensor, offsets: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """[f_h, f_zeta (, offsets to the located points)] -> (pos (..., C, 3), gripper
-        (..., C, 1) for the C = `action_chunk` steps from this one, subgoal offset or None,
-        the pointer head's stage logits (..., K) or None).
+        (..., C, 1) for the C = `action_chunk` steps from this one, subgoal offset or None).
         With a subgoal head, the actor also reads the predicted offset: moving toward a target
         it was told is an easy map. The pointer head's offset also reaches every step of the
-        position chunk through a learned per-axis gain, one weight from the action; its stage
-        choice reads the actor's input, or (`config.stage_input`) the offsets and the finger
-        joints (..., 2) alone."""
+        position chunk through a learned per-axis gain, one weight from the action."""
         parts = [history, task] if offsets is None else [history, task, offsets]
         actor_input = torch.cat(parts, dim=-1)
         if self.subgoal_head is None:
-            return (*self.actor(actor_input), None, None)
-        stage_logits = None
+            return (*self.actor(actor_input), None)
         if self.subgoal_gain is None:  # the linear head
             subgoal = self.subgoal_head(actor_input)
         else:
-            geometric = self.config.stage_input == "geometry"
-            choice = stage_geometry(offsets, fingers) if geometric else actor_input
-            subgoal, stage_logits = self.subgoal_head(actor_input, offsets, choice)
+            subgoal = self.subgoal_head(actor_input, offsets)
         pos, grip = self.actor(torch.cat([actor_input, subgoal], dim=-1))
         if self.subgoal_gain is not None:
             pos = pos + (self.subgoal_gain * subgoal)[..., None, :]
-        if self.grip_head is not None:
-            grip = self.grip_head(offsets, fingers, torch.softmax(stage_logits, dim=-1))
-        if self.position_head is not None:
-            pos = self.position_head(offsets, fingers, torch.softmax(stage_logits, dim=-1))
-            pos = pos + (self.subgoal_gain * subgoal)[..., None, :]
-        return pos, grip, subgoal, stage_logits
+        return pos, grip, subgoal
 
     def loss(self, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
         """Behaviour cloning on one `EnvironmentIterations` item (its rollouts and demos).
@@ -516,13 +422,6 @@ class DCPolicy(nn.Module):
             subgoal_loss = F.mse_loss(out["subgoal"][acted], offset[acted])
             total = total + self.config.subgoal_weight * subgoal_loss
             parts["subgoal_mse"] = subgoal_loss.item()
-        if self.config.stage_weight > 0:
-            logits = out["stage_logits"]
-            labels = stage_labels(rollouts["subgoal"].to(logits.device), mask)
-            chosen = acted & (labels < logits.shape[-1])  # the rest after the last stage: none
-            stage_loss = F.cross_entropy(logits[chosen], labels[chosen])
-            total = total + self.config.stage_weight * stage_loss
-            parts["stage_ce"] = stage_loss.item()
         if self.inverse_dynamics is not None:
             f = out["visual"]
             pair = torch.cat([f[:, :-1], f[:, 1:]], dim=-1)[acted[:, :-1] & mask[:, 1:]]
@@ -633,15 +532,14 @@ class DCPolicy(nn.Module):
             history, task, self._online["state"] = self.step(
                 f_t, self._online["memory"], self._online["state"]
             )
-            offsets = fingers = None
+            offsets = None
             if self.localizer is not None:
                 if self._online["located"] is None:  # the rollout's first frame
                     self._online["located"] = self.localizer.locate(
                         frame[None], self._online["queries"]
                     ).flatten(1)
                 offsets = self.located_offsets(self._online["located"], proprio)
-                fingers = proprio[..., 3:]
-            pos, grip, *_ = self._actor(history, task, offsets, fingers)
+            pos, grip, _ = self._actor(history, task, offsets)
             pos, grip = self._ensemble(pos[0], grip[0])
             action = self.to_action(pos, grip)
         self._online.update(history=history[0], task=task[0], t=self._online["t"] + 1)

@@ -38,18 +38,6 @@ class PolicyConfig:
             among the offsets to the located points plus a linear residual, whose prediction
             also enters the position action through a learned per-axis gain (under `mini`,
             where the actor otherwise ignored the located coordinates).
-        stage_input: what the pointer head's stage choice reads: `actor`, the actor's input
-            ([f_h, f_zeta, offsets]); or `geometry`, the offsets to the located points and the
-            finger joints alone (`aed_models.policies.base.stage_geometry`).
-        stage_weight: weight of a cross-entropy on the pointer head's stage choice against each
-            training frame's stage (`aed_models.policies.base.stage_labels`); 0 = the choice
-            learns from the stage-target loss alone.
-        grip_head: `actor`, the gripper from the actor; or `located` (needs the pointer head):
-            from the offsets to the located points, the finger joints and the pointer's stage
-            choice alone (`LocatedGripHead`).
-        position_head: `actor`, the position from the actor; or `located` (needs the pointer
-            head): from what the located grip head reads (`LocatedPositionHead`), plus the
-            pointer's gain path.
         frozen_encoder: the visual head is the task's scene encoder (`aed train-encoder`, trained
             to say where things are), frozen; training reads its cached per-frame features. The
             paper trains its heads end to end (off under `paper`, on under `mini`).
@@ -85,10 +73,6 @@ class PolicyConfig:
     demo_frames: int = 0
     subgoal_weight: float = 0.0
     subgoal_head: Literal["linear", "pointer"] = "linear"
-    stage_input: Literal["actor", "geometry"] = "actor"
-    stage_weight: float = 0.0
-    grip_head: Literal["actor", "located"] = "actor"
-    position_head: Literal["actor", "located"] = "actor"
     frozen_encoder: bool = False
     localizer: LocalizerConfig | None = None
     action_chunk: int = 1
@@ -120,29 +104,9 @@ class PolicyConfig:
             raise ValueError(
                 "subgoal_head='pointer' needs a localizer (it points at the located targets)"
             )
-        if self.stage_input not in ("actor", "geometry"):
-            raise ValueError(f"stage_input={self.stage_input!r}: actor or geometry")
         if self.localizer is not None and not self.proprio:
             raise ValueError(
                 "localizer needs proprio=True (the policy reads the offsets from the TCP)"
-            )
-        if self.stage_weight < 0:
-            raise ValueError(f"stage_weight={self.stage_weight}: must be >= 0")
-        pointer = self.subgoal_weight > 0 and self.subgoal_head == "pointer"
-        if (self.stage_input == "geometry" or self.stage_weight > 0) and not pointer:
-            raise ValueError(
-                "stage_input='geometry' and stage_weight > 0 are the pointer head's stage choice "
-                "(subgoal_weight > 0, subgoal_head='pointer')"
-            )
-        for name in ("grip_head", "position_head"):
-            if getattr(self, name) not in ("actor", "located"):
-                raise ValueError(f"{name}={getattr(self, name)!r}: actor or located")
-        if "located" in (self.grip_head, self.position_head) and not (
-            self.subgoal_weight > 0 and self.subgoal_head == "pointer"
-        ):
-            raise ValueError(
-                "a located grip or position head needs the pointer stage-target head "
-                "(subgoal_weight > 0, subgoal_head='pointer'): it reads its stage choice"
             )
         if self.demo_frames < 0 or self.demo_frames == 1:
             raise ValueError(f"demo_frames={self.demo_frames}: 0 (all) or >= 2")
@@ -155,9 +119,7 @@ class PolicyConfig:
     def preset(cls: type[C], profile: str) -> C:
         """The sizes of a profile: `paper` the paper's (ResNet18 head, RGB-D only); `mini` and
         `demo` CPU-sized (the task's frozen scene encoder as the visual head, proprioception, a
-        pointer stage-target head choosing its stage from geometry, taught by a stage loss, the
-        task's target localizer and located grip and position heads, the class's action
-        chunks)."""
+        pointer stage-target head, the task's target localizer, the class's action chunks)."""
         if check_profile(profile) == "paper":
             return cls(visual=VisualHeadConfig(arch="resnet18", out_dim=256, dropout=0.5))
         small = VisualHeadConfig(arch="small_cnn", out_dim=256, dropout=0.0, width=32)
@@ -166,10 +128,6 @@ class PolicyConfig:
             proprio=True,
             subgoal_weight=1.0,
             subgoal_head="pointer",
-            stage_input="geometry",
-            stage_weight=1.0,
-            grip_head="located",
-            position_head="located",
             frozen_encoder=True,
             localizer=LocalizerConfig.preset(profile),
             action_chunk=cls.mini_action_chunk,

@@ -229,10 +229,6 @@ def test_policies_train_on_a_frozen_encoder(name, encoder_path, collection, tmp_
         frozen_encoder=True,
         localizer=None,
         subgoal_head="linear",  # the pointer head needs a localizer
-        grip_head="actor",  # the located heads point at located targets too
-        position_head="actor",
-        stage_input="actor",  # the geometric stage choice is the pointer head's
-        stage_weight=0.0,
         **tiny.get(name, {}),
     )
     cfg = TrainPolicyConfig.from_preset(

@@ -39,10 +39,6 @@ def policy(tmp_path_factory) -> tuple[object, str]:
         visual=VisualHeadConfig(arch="small_cnn", out_dim=16, width=4),
         localizer=None,
         subgoal_head="linear",  # the pointer head needs a localizer
-        grip_head="actor",  # the located heads point at located targets too
-        position_head="actor",
-        stage_input="actor",  # the geometric stage choice is the pointer head's
-        stage_weight=0.0,
     )
     path = tmp_path_factory.mktemp("policy") / "policy.pt"
     save_policy(path, make_policy("naive_dc", config).eval())

@@ -304,12 +304,12 @@ def test_localizer_training_resumes_to_the_same_weights(collections, tmp_path):
         localizer_config(base, tmp_path / "x", profile="paper")
 
 
-def policy_config(name: str, localizer: LocalizerConfig | None = TINY, **overrides):
+def policy_config(name: str, localizer: LocalizerConfig | None = TINY):
     tiny = {"dct": {"num_heads": 4, "ff_dim": 32}, "scan": {"lstm_hidden": 12, "attention_dim": 8}}
     visual = VisualHeadConfig(arch="small_cnn", out_dim=16, width=4, dropout=0.0)
     return POLICIES.preset(
         name, "mini", visual=visual, actor_hidden=(16, 8), frozen_encoder=False,
-        localizer=localizer, **{**tiny.get(name, {}), **overrides},
+        localizer=localizer, **tiny.get(name, {}),
     )  # fmt: skip
 
 
@@ -319,15 +319,13 @@ def episode_batch(collection, env: int, role: str, n: int):
     return pad_sequences([reader.read(r) for r in refs])
 
 
-@pytest.mark.parametrize(("stage_input", "heads"), [("actor", "actor"), ("geometry", "located")])
 @pytest.mark.parametrize("name", ["naive_dc", "dct", "scan"])
-def test_online_actions_equal_batched_with_a_localizer(name, stage_input, heads, collections):
+def test_online_actions_equal_batched_with_a_localizer(name, collections):
     """The policy locates its targets in the rollout's first frame, online and batched alike,
     and a batch given those points (`located`, as training caches them) acts the same."""
     base, _ = collections
     torch.manual_seed(0)
-    config = policy_config(name, stage_input=stage_input, grip_head=heads, position_head=heads)
-    policy = make_policy(name, config)
+    policy = make_policy(name, policy_config(name))
     policy.localizer.set_camera(torch.from_numpy(INTRINSIC), torch.from_numpy(EXTRINSIC))
     policy.set_action_stats(torch.randn(50, 4) * 0.2)
     with torch.no_grad():  # the pointer head's paths, which start at 0, open
@@ -354,91 +352,6 @@ def test_online_actions_equal_batched_with_a_localizer(name, stage_input, heads,
         policy.reset({k: v for k, v in demos.items() if k != "subgoal"})
 
 
-def test_a_geometric_stage_choice_reads_the_offsets_and_fingers_not_the_scene():
-    """With `stage_input='geometry'` the pointer's stage choice moves with the offsets and the
-    finger joints and not with f_h or f_zeta; the residual and the actor still read those."""
-    torch.manual_seed(0)
-    k = 3
-    localizer = dataclasses.replace(TINY, num_targets=k)
-    policy = make_policy("scan", policy_config("scan", localizer, stage_input="geometry"))
-    history, task = torch.randn(2, 4, policy.history_dim), torch.randn(2, 4, policy.task_dim)
-    offsets, fingers = torch.randn(4, 3 * k), torch.rand(4, 2) * 0.04
-    with torch.no_grad():
-        policy.subgoal_gain.fill_(0.5)
-        a = policy._actor(history[0], task[0], offsets, fingers)[2]
-        b = policy._actor(history[1], task[1], offsets, fingers)[2]
-        c = policy._actor(history[0], task[0], offsets, fingers.flip(0))[2]
-        policy.subgoal_head.residual.weight.normal_(0, 0.1)
-        d = policy._actor(history[1], task[1], offsets, fingers)[2]
-    assert torch.equal(a, b) and not torch.allclose(a, c) and not torch.allclose(b, d)
-    with pytest.raises(ValueError, match="actor or geometry"):
-        policy_config("scan", stage_input="scene")
-    with pytest.raises(ValueError, match="pointer head's stage choice"):
-        policy_config("scan", stage_input="geometry", subgoal_head="linear")
-
-
-def test_the_stage_loss_teaches_the_pointer_each_frames_stage(collections):
-    """`stage_labels` counts the target's changes (padding -1); with `stage_weight` the loss
-    adds a cross-entropy on the stage choice, whose gradient reaches the choice."""
-    from aed_models.policies.base import stage_labels
-
-    a, b, c = torch.eye(3)
-    subgoal = torch.stack([torch.stack([a, a, b, b, c]), torch.stack([a, b, b, a * 0, a * 0])])
-    mask = torch.tensor([[True] * 5, [True] * 3 + [False] * 2])
-    assert stage_labels(subgoal, mask).tolist() == [[0, 0, 1, 1, 2], [0, 1, 1, -1, -1]]
-    base, _ = collections
-    rollouts = episode_batch(base, 0, "agent_success", 2)
-    length = rollouts["mask"].shape[1]
-    torch.manual_seed(0)
-    three_stages = torch.stack([a, b, c])[torch.arange(length) * 3 // length]
-    rollouts["subgoal"] = three_stages.expand(2, -1, -1).clone()
-    rollouts["located"] = torch.randn(2, 1, 9).expand(-1, length, -1)  # three located targets
-    batch = {"rollouts": rollouts, "demos": episode_batch(base, 0, "demo", 3)}
-    localizer = dataclasses.replace(TINY, num_targets=3)
-    plain = make_policy("scan", policy_config("scan", localizer, action_chunk=1, stage_weight=0.0))
-    staged = make_policy("scan", policy_config("scan", localizer, action_chunk=1, stage_weight=2.0))
-    staged.load_state_dict(plain.state_dict())
-    (loss, parts), (staged_loss, staged_parts) = plain.loss(batch), staged.loss(batch)
-    assert "stage_ce" not in parts and staged_parts["stage_ce"] > 0
-    assert torch.isclose(staged_loss - loss, torch.tensor(2.0 * staged_parts["stage_ce"]))
-    loss.backward()
-    staged_loss.backward()
-    grads = [p.subgoal_head.select[0].weight.grad for p in (plain, staged)]
-    assert not torch.allclose(*grads)
-
-
-def test_located_heads_read_geometry_not_the_scene():
-    """Located heads act from the offsets, the fingers and the stage choice, and nothing else
-    of the features: with the grip head alone the position still reads them."""
-    torch.manual_seed(0)
-    k = TINY.num_targets
-    offsets, fingers = torch.randn(4, 3 * k), torch.rand(4, 2) * 0.04
-    for position_head in ("actor", "located"):
-        policy = make_policy(
-            "scan", policy_config("scan", grip_head="located", position_head=position_head)
-        )
-        history = torch.randn(2, 4, policy.history_dim)
-        task = torch.randn(2, 4, policy.task_dim)
-        with torch.no_grad():
-            policy.subgoal_head.select[-1].weight.zero_()  # one stage choice for any features
-            policy.subgoal_head.residual.weight.zero_()
-            pos_a, grip_a, *_ = policy._actor(history[0], task[0], offsets, fingers)
-            pos_b, grip_b, *_ = policy._actor(history[1], task[1], offsets, fingers)
-            pos_c, grip_c, *_ = policy._actor(history[1], task[1], offsets.flip(0), fingers)
-        assert grip_a.shape == (4, policy.config.action_chunk, 1)
-        assert pos_a.shape == (4, policy.config.action_chunk, 3)
-        assert torch.equal(grip_a, grip_b) and not torch.allclose(grip_b, grip_c)
-        assert torch.equal(pos_a, pos_b) == (position_head == "located")
-        assert not torch.allclose(pos_b, pos_c)
-    with pytest.raises(ValueError, match="actor or located"):
-        policy_config("scan", grip_head="features")
-    with pytest.raises(ValueError, match="needs the pointer stage-target head"):
-        policy_config(
-            "scan", position_head="located", subgoal_head="linear", stage_input="actor",
-            stage_weight=0.0,
-        )  # fmt: skip
-
-
 def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, tmp_path):
     base, _ = collections
     cfg = TrainPolicyConfig.from_preset(
@@ -446,8 +359,7 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
         localizer=localizer_path, epochs=2, progress=False, num_envs=0, composition=(2, 2),
         feature_dropout=0.0,  # end to end: no cached features
     )  # fmt: skip
-    config = policy_config("naive_dc", LocalizerConfig(), grip_head="actor", position_head="actor")
-    policy = load_policy(train_policy(cfg, config))  # the actor's inputs are blinded below
+    policy = load_policy(train_policy(cfg, policy_config("naive_dc", LocalizerConfig())))
     localizer = load_localizer(localizer_path)
     assert policy.config.localizer == localizer.config  # the checkpoint's sizes, not the preset's
     a, b = policy.localizer.state_dict(), localizer.state_dict()

@@ -44,10 +44,6 @@ def tiny_config(name: str, profile: str = "mini"):
         frozen_encoder=False,
         localizer=None,
         subgoal_head="linear",  # the pointer head points at located targets
-        grip_head="actor",  # the located heads point at located targets too
-        position_head="actor",
-        stage_input="actor",  # the geometric stage choice is the pointer head's
-        stage_weight=0.0,
         **TINY[name],
     )
 
@@ -507,21 +503,16 @@ def test_stage_subgoals_are_where_each_stage_ends():
 def test_the_pointer_head_chooses_among_the_located_offsets():
     from aed_models.policies.base import PointerSubgoalHead
 
-    head = PointerSubgoalHead(in_dim=10, num_targets=2, choice_dim=10)
-    x = torch.randn(1, 10)
+    head = PointerSubgoalHead(in_dim=10, num_targets=2)
     offsets = torch.tensor([[1.0, 2.0, 3.0, -4.0, -5.0, -6.0]])
     with torch.no_grad():
         head.select[-1].weight.zero_()
         head.select[-1].bias.copy_(torch.tensor([0.0, 50.0]))  # the second stage's point
-    assert torch.allclose(head(x, offsets, x)[0], offsets[:, 3:])
+    assert torch.allclose(head(torch.randn(1, 10), offsets), offsets[:, 3:])
     with torch.no_grad():
         head.select[-1].bias.zero_()  # undecided: halfway, whatever the input
-    assert torch.allclose(head(x, offsets, x)[0], torch.tensor([[-1.5, -1.5, -1.5]]))
+    assert torch.allclose(head(torch.randn(1, 10), offsets), torch.tensor([[-1.5, -1.5, -1.5]]))
     assert POLICIES.preset("scan", "mini").subgoal_head == "pointer"
-    assert POLICIES.preset("scan", "mini").position_head == "located"
-    assert POLICIES.preset("scan", "paper").grip_head == "actor"
-    assert POLICIES.preset("dct", "mini").stage_input == "geometry"
-    assert POLICIES.preset("dct", "paper").stage_weight == 0.0
     with pytest.raises(ValueError, match="needs a localizer"):
         POLICIES.preset("scan", "mini", localizer=None)
     with pytest.raises(ValueError, match="linear or pointer"):
