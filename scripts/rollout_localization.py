@@ -255,9 +255,10 @@ def expert_first_close(refs: list, target: str) -> dict:
 
 def own_first_close(recorded: list, own: list) -> dict:
     """Where and when the policy's own action (its chunks' temporal ensemble, as online), run
-    on each episode's recorded frames, first says close (`close_summary`), and by how many steps before the recorded first close
-    (median over the episodes where both close). On expert episodes given as `--rollouts`
-    this is where the policy would have closed on the expert's way down."""
+    on each episode's recorded frames, first says close (`close_summary`), and by how many
+    steps before the recorded first close (median over the episodes where both close). On
+    expert episodes given as `--rollouts` this is where the policy would have closed on the
+    expert's way down."""
     leads = [r[0] - o[0] for r, o in zip(recorded, own, strict=True) if r and o]
     return {
         **close_summary(own),
