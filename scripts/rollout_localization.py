@@ -11,8 +11,8 @@ that missed from one that was never tried; where the policy's own output, run on
 frames, first says close tells the same of the policy's decision on any episodes (on expert
 episodes given as `--rollouts`: whether it would close where the expert does). The follow
 gain tells whether the actor goes where it was told: the first stage's located point moved
-by `--shift` along x (then y), how far the actor's first `--steps` position actions (on the
-rollout's own frames) move, as a share of the shift (the actions' metres per unit fitted on
+by `--shift` along x (then y), how far the first `--steps` position actions it takes online (on
+the rollout's own frames) move, as a share of the shift (the actions' metres per unit fitted on
 the rollouts' own motion); 1 = it follows fully.
 
     python scripts/rollout_localization.py --policy runs/PressButton/policies/scan/policy.pt \
@@ -150,6 +150,7 @@ def main(cfg: Config) -> dict:
         "follow_gain": {
             "shift_cm": 100 * cfg.shift,
             "steps": cfg.steps,
+            "actions": "online",
             **{
                 axis: round(float(gain[i]), 3) if np.isfinite(gain[i]) else None
                 for i, axis in enumerate("xy")
@@ -288,12 +289,13 @@ class PolicyRun:
 def action_response(
     run: PolicyRun, outputs: dict, points: torch.Tensor, shift: float, steps: int
 ) -> np.ndarray:
-    """(2,) how much the sum of the policy's first `steps` position actions (x, y; the env's
-    action units) changes, against `outputs` (the run at `points`), when the first stage's
-    located point moves by `shift` metres along that axis."""
+    """(2,) how much the sum of the first `steps` position actions the policy takes online
+    (x, y; the env's action units) changes, against `outputs` (the run at `points`), when the
+    first stage's located point moves by `shift` metres along that axis."""
 
     def summed(out: dict) -> torch.Tensor:
-        return (out["pos"][0, :steps] * run.policy.action_std[:3]).sum(0)
+        pos, _ = run.online_actions(out)
+        return (pos[0, :steps] * run.policy.action_std[:3]).sum(0)
 
     base = summed(outputs)
     response = np.zeros(2)

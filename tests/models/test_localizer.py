@@ -29,6 +29,7 @@ from aed_models.localizer.modeling_localizer import (
 )
 from aed_models.nn import VisualHeadConfig
 from aed_models.policies import POLICIES, load_policy, make_policy
+from aed_models.policies.base import DCPolicy
 from aed_models.train.localizer import (
     TrainLocalizerConfig,
     located_points,
@@ -394,7 +395,7 @@ def test_policies_train_reading_a_frozen_localizer(localizer_path, collections, 
     assert own["median_steps_before_recorded"] is None  # the recorded episodes never close
     assert all(r["first_close_cm"] is None for r in per_rollout)
     gain = diagnosis["follow_gain"]
-    assert (gain["shift_cm"], gain["steps"]) == (5.0, 30)
+    assert (gain["shift_cm"], gain["steps"], gain["actions"]) == (5.0, 30, "online")
     assert all(isinstance(gain[axis], float) and np.isfinite(gain[axis]) for axis in "xy"), gain
     # an actor that reads neither the located points nor the pointer head's offset does not
     # follow them at all
@@ -430,6 +431,28 @@ def test_first_close_is_the_first_closed_command_and_the_tcp_offset_there():
     assert own["median_steps_before_recorded"] == 2.0  # only the first episode has both
     refs = [SimpleNamespace(env_index=e) for e in (0, 1, 0, 0, 1, 2)]
     assert script.first_per_env(refs, 2) == [refs[i] for i in (0, 1, 2, 4, 5)]
+
+
+def test_the_follow_gain_sums_the_actions_taken_online():
+    """The response is of the temporal ensemble `act` takes, not of each chunk's first action."""
+
+    class Run:
+        policy = SimpleNamespace(action_std=torch.full((4,), 2.0))
+
+        def __call__(self, points: torch.Tensor) -> dict:
+            chunk = torch.zeros(1, 4, 3, 3)  # (B, T, chunk, xyz): the first actions never move
+            chunk[..., 1:, :2] = points[0, 0, :2]  # the later ones follow the located point
+            return {"pos": chunk[:, :, 0], "pos_chunk": chunk, "grip_chunk": chunk[..., :1]}
+
+        def online_actions(self, outputs: dict) -> tuple[torch.Tensor, torch.Tensor]:
+            return DCPolicy.ensemble_chunks(outputs["pos_chunk"], outputs["grip_chunk"])
+
+    run, points = Run(), torch.zeros(1, 2, 3)
+    response = load_script("rollout_localization").action_response(run, run(points), points, 0.5, 4)
+    online, _ = run.online_actions(run(points + 0.5))
+    assert torch.all(online[0, 1:, :2] > 0)  # from step 1 on, later chunks' actions are averaged
+    expected = float(2.0 * online[0, :4, 0].sum())
+    assert response[0] == pytest.approx(expected) and response[0] > 0
 
 
 def test_the_probe_script_measures_novel_errors(localizer_path, collections, tmp_path):
