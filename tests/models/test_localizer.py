@@ -436,19 +436,21 @@ def test_first_close_is_the_first_closed_command_and_the_tcp_offset_there():
 def test_the_follow_gain_sums_the_actions_taken_online():
     """The response is of the temporal ensemble `act` takes, not of each chunk's first action."""
 
-    class Run:
-        policy = SimpleNamespace(action_std=torch.full((4,), 2.0))
+    script = load_script("rollout_localization")
+
+    class Run(script.PolicyRun):  # the script's own `online_actions`, a scripted policy
+        def __init__(self) -> None:
+            self.policy = SimpleNamespace(
+                action_std=torch.full((4,), 2.0), ensemble_chunks=DCPolicy.ensemble_chunks
+            )
 
         def __call__(self, points: torch.Tensor) -> dict:
             chunk = torch.zeros(1, 4, 3, 3)  # (B, T, chunk, xyz): the first actions never move
             chunk[..., 1:, :2] = points[0, 0, :2]  # the later ones follow the located point
             return {"pos": chunk[:, :, 0], "pos_chunk": chunk, "grip_chunk": chunk[..., :1]}
 
-        def online_actions(self, outputs: dict) -> tuple[torch.Tensor, torch.Tensor]:
-            return DCPolicy.ensemble_chunks(outputs["pos_chunk"], outputs["grip_chunk"])
-
     run, points = Run(), torch.zeros(1, 2, 3)
-    response = load_script("rollout_localization").action_response(run, run(points), points, 0.5, 4)
+    response = script.action_response(run, run(points), points, 0.5, 4)
     online, _ = run.online_actions(run(points + 0.5))
     assert torch.all(online[0, 1:, :2] > 0)  # from step 1 on, later chunks' actions are averaged
     expected = float(2.0 * online[0, :4, 0].sum())
