@@ -105,16 +105,20 @@ def stage_subgoals(tcp: np.ndarray, stage: np.ndarray) -> np.ndarray:
 
 def stage_end_points(subgoal: torch.Tensor, num_stages: int) -> torch.Tensor:
     """Per-frame stage targets (L, 3) of a successful episode (`stage_subgoals`) -> where its
-    first `num_stages` stages ended (num_stages, 3): the targets in order of appearance. The
-    last target is where the episode ends (its rest after the final stage), so an episode
-    must show `num_stages + 1` of them."""
+    first `num_stages` stages ended (num_stages, 3): the targets in order of appearance.
+
+    After them comes where the episode ends (its rest after the final stage), unless the final
+    stage ended where the robot then rests: a stage the scene completes while the robot holds
+    still (Factory Packing's conveyor carrying the packed box off) leaves one target for both.
+    So an episode shows at least `num_stages` targets; whether it completed its stages is known
+    from its role or its stage labels (`aed_models.train.localizer.stage_episode`), not here."""
     subgoal = torch.as_tensor(subgoal)
     change = torch.ones(len(subgoal), dtype=torch.bool)
     change[1:] = (subgoal[1:] != subgoal[:-1]).any(-1)
     points = subgoal[change]
-    if len(points) < num_stages + 1:
+    if len(points) < num_stages:
         raise ValueError(
-            f"an episode completing {len(points) - 1} stages, {num_stages} needed "
+            f"an episode showing {len(points)} stage targets, {num_stages} needed "
             "(is it a successful one?)"
         )
     return points[:num_stages]

@@ -85,11 +85,18 @@ def stage_episode(ref: trajectory.EpisodeRef, num_stages: int, camera: str) -> S
     with h5py.File(ref.path, "r") as h5:
         group = h5[ref.traj]
         tcp = group["obs/extra/tcp_pose"][()][:, :3].astype(np.float32)
-        subgoal = stage_subgoals(tcp, group["stage"][()])
+        stage = group["stage"][()]
+        subgoal = stage_subgoals(tcp, stage)
         params = group.get(f"obs/sensor_param/{camera}")
         if params is None:
             raise ValueError(f"{ref.path.name}/{ref.traj}: no sensor_param/{camera} recorded")
         intrinsic, extrinsic = params["intrinsic_cv"][0], params["extrinsic_cv"][0]
+    completed = int(stage.max()) if len(stage) else 0
+    if completed < num_stages:
+        raise ValueError(
+            f"{ref.path.name}/{ref.traj} ({ref.role}): completes {completed} stages, "
+            f"{num_stages} needed (is it a successful one?)"
+        )
     try:
         points = stage_end_points(torch.from_numpy(subgoal), num_stages).numpy()
     except ValueError as e:

@@ -214,8 +214,26 @@ def test_stage_end_points_are_where_each_stage_ended():
     stage = np.array([0, 0, 1, 1, 1, 2, 2])  # stage 1 done by step 2, stage 2 by step 5
     points = stage_end_points(torch.from_numpy(stage_subgoals(tcp, stage)), 2)
     assert torch.equal(points, torch.from_numpy(tcp[[3, 6]]))
-    with pytest.raises(ValueError, match="completing 0 stages, 1 needed"):
-        stage_end_points(torch.from_numpy(stage_subgoals(tcp, np.zeros(7))), 1)
+    with pytest.raises(ValueError, match="showing 1 stage targets, 2 needed"):
+        stage_end_points(torch.from_numpy(stage_subgoals(tcp, np.zeros(7))), 2)
+
+
+def test_a_final_stage_ending_at_rest_is_still_a_stage_target():
+    """Factory Packing's conveyor completes its last stage while the robot holds still: the
+    final stage's target and the episode's rest are one point, and both stages are found."""
+    tcp = np.arange(8 * 3, dtype=np.float32).reshape(8, 3)
+    tcp[5:] = tcp[5]  # the robot rests from frame 5 on
+    stage = np.array([0, 0, 1, 1, 1, 1, 2])  # stage 1 done by step 2, stage 2 by step 6
+    points = stage_end_points(torch.from_numpy(stage_subgoals(tcp, stage)), 2)
+    assert torch.equal(points, torch.from_numpy(tcp[[3, 7]]))
+
+
+def test_an_episode_short_of_the_stages_is_refused_by_its_labels(collections):
+    base, _ = collections
+    demo = next(e for e in load_episodes(base) if e.role == "demo")
+    assert stage_episode(demo, 1, "front").points.shape == (1, 3)
+    with pytest.raises(ValueError, match="completes 1 stages, 2 needed"):
+        stage_episode(demo, 2, "front")
 
 
 def test_colour_jitter_recolours_rgb_and_keeps_depth():
