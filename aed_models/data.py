@@ -88,35 +88,18 @@ def subsample(indices: np.ndarray, max_frames: int | None) -> np.ndarray:
     return indices[keep]
 
 
-def grasp_count(grip: np.ndarray) -> np.ndarray:
-    """(T,) gripper commands -> (T + 1,) per frame, how many grasps began before it: a grasp
-    begins at a step that commands the gripper closed (negative) after a step that commanded it
-    open. Fingers closed from the first step (Press Button's and Close Drawer's experts push
-    with closed fingertips) grasp nothing."""
-    closed = np.asarray(grip) < 0
-    begins = np.zeros(len(closed), dtype=bool)
-    begins[1:] = closed[1:] & ~closed[:-1]
-    return np.concatenate([[0], np.cumsum(begins)])
-
-
-def stage_subgoals(
-    tcp: np.ndarray, stage: np.ndarray, grip: np.ndarray | None = None
-) -> np.ndarray:
+def stage_subgoals(tcp: np.ndarray, stage: np.ndarray) -> np.ndarray:
     """(T + 1, 3) TCP positions and (T,) per-step stages -> (T + 1, 3): for every frame, the TCP
     position on the frame where its stage ends (the frame after the step that completes it; the
     last frame for the final stage). Frame t + 1 follows step t, so it carries stage[t]; frame 0
-    carries stage[0]. With the (T,) gripper commands `grip`, a grasp also ends a frame's
-    target: the TCP where the gripper closes is a target too."""
+    carries stage[0]."""
     frame_stage = (
         np.concatenate([stage[:1], stage]) if len(stage) else np.zeros(len(tcp), dtype=np.int64)
     )
-    segment = frame_stage.astype(np.int64)
-    if grip is not None and len(grip):
-        segment = segment + grasp_count(grip)
     goals = np.empty_like(tcp)
     goals[-1] = tcp[-1]
     for i in range(len(tcp) - 2, -1, -1):
-        goals[i] = goals[i + 1] if segment[i] == segment[i + 1] else tcp[i + 1]
+        goals[i] = goals[i + 1] if frame_stage[i] == frame_stage[i + 1] else tcp[i + 1]
     return goals
 
 
@@ -299,9 +282,7 @@ class EpisodeReader:
                 proprio_from_obs(tcp_pose, group["obs/agent/qpos"][()])[indices]
             )
             subgoal = torch.from_numpy(
-                stage_subgoals(
-                    tcp_pose[:, :3].astype(np.float32), group["stage"][()], recorded[:, -1]
-                )[indices]
+                stage_subgoals(tcp_pose[:, :3].astype(np.float32), group["stage"][()])[indices]
             )
         return FrameSequence(
             rgb,

@@ -29,13 +29,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from aed_models.data import (
-    EpisodeReader,
-    grasp_count,
-    load_episodes,
-    stage_end_points,
-    stage_subgoals,
-)
+from aed_models.data import EpisodeReader, load_episodes, stage_end_points, stage_subgoals
 from aed_models.localizer import FAMILY, NAME, LocalizerConfig, LocalizerRecipe
 from aed_models.localizer.modeling_localizer import (
     StageQueries,
@@ -92,13 +86,12 @@ def stage_episode(ref: trajectory.EpisodeRef, num_stages: int, camera: str) -> S
         group = h5[ref.traj]
         tcp = group["obs/extra/tcp_pose"][()][:, :3].astype(np.float32)
         stage = group["stage"][()]
-        grip = group["actions"][()][:, -1]
-        subgoal = stage_subgoals(tcp, stage, grip)
+        subgoal = stage_subgoals(tcp, stage)
         params = group.get(f"obs/sensor_param/{camera}")
         if params is None:
             raise ValueError(f"{ref.path.name}/{ref.traj}: no sensor_param/{camera} recorded")
         intrinsic, extrinsic = params["intrinsic_cv"][0], params["extrinsic_cv"][0]
-    completed = (int(stage.max()) if len(stage) else 0) + int(grasp_count(grip)[-1])
+    completed = int(stage.max()) if len(stage) else 0
     if completed < num_stages:
         raise ValueError(
             f"{ref.path.name}/{ref.traj} ({ref.role}): completes {completed} stages, "
@@ -118,9 +111,7 @@ def task_stages(episodes: Sequence[trajectory.EpisodeRef]) -> int:
     for ref in episodes:
         if ref.role == "agent_success":
             with h5py.File(ref.path, "r") as h5:
-                group = h5[ref.traj]
-                grasps = int(grasp_count(group["actions"][()][:, -1])[-1])
-                most = max(most, int(group["stage"][()].max()) + grasps)
+                most = max(most, int(h5[ref.traj]["stage"][()].max()))
     if most < 1:
         raise ValueError("no agent success completes a stage: nothing to locate")
     return most

@@ -7,7 +7,6 @@ import dataclasses
 import json
 from types import SimpleNamespace
 
-import h5py
 import numpy as np
 import pytest
 import torch
@@ -15,7 +14,6 @@ import torch
 from aed_models.data import (
     DEPTH_SCALE_MM,
     EpisodeReader,
-    grasp_count,
     load_episodes,
     pad_sequences,
     stage_end_points,
@@ -36,7 +34,6 @@ from aed_models.train.localizer import (
     TrainLocalizerConfig,
     located_points,
     stage_episode,
-    task_stages,
     train_localizer,
 )
 from aed_models.train.policy import TrainPolicyConfig, train_policy
@@ -229,47 +226,6 @@ def test_a_final_stage_ending_at_rest_is_still_a_stage_target():
     stage = np.array([0, 0, 1, 1, 1, 1, 2])  # stage 1 done by step 2, stage 2 by step 6
     points = stage_end_points(torch.from_numpy(stage_subgoals(tcp, stage)), 2)
     assert torch.equal(points, torch.from_numpy(tcp[[3, 7]]))
-
-
-def test_a_grasp_is_a_target_before_its_stage_ends():
-    """Factory Packing's expert picks the product up before the box arrives: the TCP where the
-    gripper closed is a target of its own, before the stage's end. Fingers closed from the
-    first step (Press Button's expert pushes with them) grasp nothing."""
-    tcp = np.arange(8 * 3, dtype=np.float32).reshape(8, 3)
-    stage = np.array([0, 0, 0, 0, 1, 1, 1])  # stage 1 done by step 4
-    grip = np.array([1, 1, -1, -1, -1, 1, 1], np.float32)  # closes at step 2
-    assert grasp_count(grip).tolist() == [0, 0, 0, 1, 1, 1, 1, 1]
-    points = stage_end_points(torch.from_numpy(stage_subgoals(tcp, stage, grip)), 2)
-    assert torch.equal(points, torch.from_numpy(tcp[[3, 5]]))
-    assert torch.equal(
-        torch.from_numpy(stage_subgoals(tcp, stage, -np.ones(7, np.float32))),
-        torch.from_numpy(stage_subgoals(tcp, stage)),
-    )
-    assert grasp_count(np.array([-1, 1, -1, -1, 1, -1], np.float32))[-1] == 2
-
-
-def test_the_localizer_reads_a_grasp_as_a_target(tmp_path):
-    def grasping(role, env_index, seed, steps):
-        episode, recorded = synthetic(role, env_index, seed, steps)
-        episode.actions[:, 3] = np.where(np.arange(steps) >= 1, -1.0, 1.0)
-        return episode, recorded
-
-    base = write_synthetic_collection(
-        tmp_path / "base", {"demo": 1, "agent_success": 1}, envs=(0,), steps=5,
-        make_episode=grasping,
-    )  # fmt: skip
-    episodes = load_episodes(base)
-    assert task_stages(episodes) == 2  # one stage, one grasp
-    demo = next(e for e in episodes if e.role == "demo")
-    tcp = recorded_tcp(demo)
-    assert np.array_equal(stage_episode(demo, 2, "front").points, tcp[[2, 4]])
-    with pytest.raises(ValueError, match="completes 2 stages, 3 needed"):
-        stage_episode(demo, 3, "front")
-
-
-def recorded_tcp(ref) -> np.ndarray:
-    with h5py.File(ref.path, "r") as h5:
-        return h5[ref.traj]["obs/extra/tcp_pose"][()][:, :3]
 
 
 def test_an_episode_short_of_the_stages_is_refused_by_its_labels(collections):
