@@ -3,7 +3,8 @@
 From each case's `results.json` and `scores.json` (`aed evaluate`) it writes one folder:
 `report.md` / `report.json` (AUROC and AUPRC with intervals under both endings; summary rows
 that rank the paper's five detectors only, over cases with at least 5 rollouts of each
-outcome; success rates, calibrated rates, detection delays) and per case the AUROC, ROC and
+outcome; success rates, calibrated rates, detection delays), `overview.png` (every case's
+AUROC and AUPRC, the paper's main-results figure) and per case the AUROC, ROC and
 score-against-time plots. `≈` marks a best score whose interval overlaps the runner-up's, `‡`
 a case too small to rank.
 """
@@ -28,6 +29,7 @@ from aed_eval.evaluate import (
     with_interval,
 )
 from aed_eval.paper import POLICY_SUCCESS
+from aed_eval.results import save_figure
 from aed_eval.scoring import PAPER_DETECTORS
 from aed_tasks import trajectory
 from aed_tasks.locks import locks_out_folder
@@ -307,35 +309,46 @@ def build_report(cases: list[dict[str, Any]], detectors: list[str]) -> tuple[dic
     return report, "\n".join(lines) + "\n"
 
 
-def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
-    """AUROC with intervals per ending, ROC curves, and score against time for two episodes."""
+def _pyplot() -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    stem = f"{case['task']}_{case['policy']}"
-    rows = {**case["detectors"], **{f"{k} (ref.)": v for k, v in case["references"].items()}}
-    written = []
+    return plt
 
+
+def _bars(ax: Any, series: dict[str, list[dict[str, Any]]], metric: str) -> None:
+    """Grouped bars of `metric` with their 95% intervals: one bar per series in each group,
+    `series[name][g]` the cell (with `<metric>` and `<metric>_interval`) of group g."""
+    width = 0.8 / max(len(series), 1)
+    for k, (name, cells) in enumerate(series.items()):
+        values = np.asarray([c[metric] for c in cells], dtype=float)
+        bounds = np.asarray([c[f"{metric}_interval"] for c in cells], dtype=float)
+        err = np.nan_to_num(np.stack([values - bounds[:, 0], bounds[:, 1] - values]), nan=0.0)
+        x = np.arange(len(cells)) + (k - (len(series) - 1) / 2) * width
+        ax.bar(x, np.nan_to_num(values), width, yerr=err, capsize=2, label=name)
+
+
+def plot_auroc(case: dict[str, Any], path: Path) -> Path:
+    """One case's rollout AUROC with intervals, per detector and reference, under each ending."""
+    plt = _pyplot()
+    rows = {**case["detectors"], **{f"{k} (ref.)": v for k, v in case["references"].items()}}
+    endings = {ENDING_TITLES[e]: [row[e] for row in rows.values()] for e in case["endings"]}
     fig, ax = plt.subplots(figsize=(1.1 * len(rows) + 2, 3.6))
-    width = 0.8 / len(case["endings"])
-    for k, ending in enumerate(case["endings"]):
-        values = np.asarray([row[ending]["auroc"] for row in rows.values()], dtype=float)
-        low = np.asarray([row[ending]["auroc_interval"][0] for row in rows.values()], dtype=float)
-        high = np.asarray([row[ending]["auroc_interval"][1] for row in rows.values()], dtype=float)
-        x = np.arange(len(rows)) + (k - (len(case["endings"]) - 1) / 2) * width
-        err = np.nan_to_num(np.stack([values - low, high - values]), nan=0.0)
-        ax.bar(x, np.nan_to_num(values), width, yerr=err, capsize=3, label=ENDING_TITLES[ending])
+    _bars(ax, endings, "auroc")
     ax.axhline(0.5, color="grey", linestyle=":")
     ax.set_xticks(np.arange(len(rows)), list(rows), rotation=30, ha="right", fontsize=8)
     ax.set(ylim=(0, 1), ylabel="rollout AUROC [95%]", title=f"{case['task']} / {case['policy']}")
     ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
-    written.append(out / f"auroc_{stem}.png")
-    fig.savefig(written[-1], dpi=120)
-    plt.close(fig)
+    return save_figure(fig, path)
 
+
+def plot_roc(case: dict[str, Any], path: Path) -> Path:
+    """One case's ROC curves under its default ending, references dashed."""
+    plt = _pyplot()
+    rows = {**case["detectors"], **{f"{k} (ref.)": v for k, v in case["references"].items()}}
     fig, ax = plt.subplots(figsize=(4.5, 4.2))
     for name, row in rows.items():
         cell = row[case["ending"]]
@@ -353,14 +366,50 @@ def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
     )
     ax.legend(fontsize=7)
     fig.tight_layout()
-    written.append(out / f"roc_{stem}.png")
-    fig.savefig(written[-1], dpi=120)
-    plt.close(fig)
+    return save_figure(fig, path)
 
+
+def plot_overview(cases: list[dict[str, Any]], path: Path) -> Path:
+    """The paper's main-results figure: AUROC and AUPRC of every detector per (task, policy)
+    case with 95% intervals, one row per ending; `time_only` and `random` as lines across
+    their case."""
+    plt = _pyplot()
+    names = [f"{c['task']}\n{c['policy']}" for c in cases]
+    detectors = check_cases(cases)
+    endings = [e for e in ENDING_TITLES if all(e in c["endings"] for c in cases)]
+    fig, axes = plt.subplots(
+        len(endings),
+        len(METRICS),
+        figsize=(2 + 1.6 * len(cases) * len(METRICS), 3.2 * len(endings)),
+        squeeze=False,
+    )
+    for row, ending in zip(axes, endings, strict=True):
+        for ax, metric in zip(row, METRICS, strict=True):
+            _bars(ax, {d: [c["detectors"][d][ending] for c in cases] for d in detectors}, metric)
+            for ref, style in (("time_only", "-"), ("random", "--")):
+                values = [c["references"].get(ref, {}).get(ending, {}).get(metric) for c in cases]
+                x = np.asarray([i for i, v in enumerate(values) if v is not None], dtype=float)
+                y = [v for v in values if v is not None]
+                ax.hlines(
+                    y, x - 0.42, x + 0.42, colors="k", linestyles=style, label=f"{ref} (ref.)"
+                )
+            if metric == "auroc":
+                ax.axhline(0.5, color="grey", linestyle=":")
+            ax.set_xticks(np.arange(len(names)), names, fontsize=7)
+            ax.set(ylim=(0, 1), ylabel=f"{metric.upper()} [95%]", title=ENDING_TITLES[ending])
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=7)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    return save_figure(fig, path)
+
+
+def plot_scores(case: dict[str, Any], path: Path) -> Path | None:
+    """Score against time of every detector on one successful and one failed episode (the
+    labelled novel episodes when scored, else the rollouts), from the case's `scores.json`."""
     scores_path = Path(case["path"]).with_name("scores.json")
     if not scores_path.exists():
         logger.warning("%s: missing, no score-vs-time plot", scores_path)
-        return written
+        return None
     try:
         scored = json.loads(scores_path.read_text())
         group = (
@@ -369,7 +418,8 @@ def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
         episodes, scores = group["episodes"], group["scores"]
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
         logger.warning("%s: unreadable (%s), no score-vs-time plot", scores_path, e)
-        return written
+        return None
+    plt = _pyplot()
     success = next((i for i, e in enumerate(episodes) if e["success"]), None)
     failure = next((i for i, e in enumerate(episodes) if not e["success"]), None)
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharey=False)
@@ -389,10 +439,15 @@ def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
         )
     axes[1].legend(fontsize=7)
     fig.tight_layout()
-    written.append(out / f"scores_{stem}.png")
-    fig.savefig(written[-1], dpi=120)
-    plt.close(fig)
-    return written
+    return save_figure(fig, path)
+
+
+def plot_case(case: dict[str, Any], out: Path) -> list[Path]:
+    """AUROC with intervals per ending, ROC curves, and score against time for two episodes."""
+    stem = f"{case['task']}_{case['policy']}"
+    written = [plot_auroc(case, out / f"auroc_{stem}.png"), plot_roc(case, out / f"roc_{stem}.png")]
+    scores = plot_scores(case, out / f"scores_{stem}.png")
+    return written + ([scores] if scores else [])
 
 
 @locks_out_folder  # one report per out folder (aed_tasks.locks)
@@ -402,7 +457,9 @@ def make_report(cfg: ReportConfig) -> Path:
     report, text = build_report(cases, detectors)
     cfg.out.mkdir(parents=True, exist_ok=True)
     if cfg.plots:
-        report["plots"] = [str(p) for c in cases for p in plot_case(c, cfg.out)]
+        plots = [plot_overview(cases, cfg.out / "overview.png")]
+        plots += [p for c in cases for p in plot_case(c, cfg.out)]
+        report["plots"] = [str(p) for p in plots]
     trajectory.write_json_atomic(cfg.out / "report.json", report)
     (cfg.out / "report.md").write_text(text)
     return cfg.out / "report.md"

@@ -359,6 +359,8 @@ def test_a_finished_case_is_committed_and_never_recomputed_on_an_empty_machine(
     assert [j["stage"] for j in record["jobs"]] == ["collect", "train", "evaluate"]
     assert not (results / "main" / "PressButton_scan.json").exists()
     assert "PressButton / dct" in (results / "main" / "report.md").read_text()
+    figures = ("report.png", "PressButton_dct_auroc.png", "PressButton_dct_roc.png")
+    assert all((results / "main" / f).stat().st_size > 0 for f in figures)
 
     new_machine()
     run()

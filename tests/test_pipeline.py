@@ -99,7 +99,12 @@ def test_every_stage_leaves_what_the_next_reads(pipeline):
     assert [len(s) for s in scores["rollouts"]["scores"]["probe"]] == [31, 31]
     text = report.read_text()
     assert "| PressButton / naive_dc |" in text and "probe" in text and "*time_only*" in text
-    assert (report.parent / "roc_PressButton_naive_dc.png").stat().st_size > 0
+    for figure in (
+        "roc_PressButton_naive_dc.png",
+        "auroc_PressButton_naive_dc.png",
+        "overview.png",
+    ):
+        assert (report.parent / figure).stat().st_size > 0
 
 
 @pytest.mark.slow

@@ -19,8 +19,10 @@ REPORT = "report.md"
 
 @renderer("main_case")
 def render_case(record: dict[str, Any], stem: Path) -> list[Path]:
-    """The case's evaluation (`aed evaluate`'s Markdown) and the wall time of its jobs."""
+    """The case's evaluation (`aed evaluate`'s Markdown) and the wall time of its jobs; its
+    AUROC bars under both endings and its ROC curves (`<stem>_auroc.png`, `<stem>_roc.png`)."""
     from aed_eval.evaluate import format_results
+    from aed_eval.report import plot_auroc, plot_roc
 
     seconds: dict[str, float] = defaultdict(float)
     for job in record["jobs"]:
@@ -36,7 +38,12 @@ def render_case(record: dict[str, Any], stem: Path) -> list[Path]:
     ]
     path = stem.with_suffix(".md")
     path.write_text("\n".join(lines) + "\n" + command_line(record))
-    return [path]
+    case = record["results"]
+    return [
+        path,
+        plot_auroc(case, stem.with_name(f"{stem.name}_auroc.png")),
+        plot_roc(case, stem.with_name(f"{stem.name}_roc.png")),
+    ]
 
 
 def case_records(folder: Path) -> list[tuple[Path, dict[str, Any]]]:
@@ -56,8 +63,9 @@ def case_records(folder: Path) -> list[tuple[Path, dict[str, Any]]]:
 
 def write_main_report(folder: Path, out: Path | None = None) -> Path | None:
     """The paper's main-results report (`aed report`'s tables) over the cases committed in
-    `folder`, written to `out` (default `<folder>/report.md`); None when there is none."""
-    from aed_eval.report import build_report, check_cases
+    `folder`, written to `out` (default `<folder>/report.md`) with its figure beside it
+    (`report.png`: every case's AUROC and AUPRC with intervals); None when there is none."""
+    from aed_eval.report import build_report, check_cases, plot_overview
 
     cases = [{**r["results"], "path": str(p)} for p, r in case_records(folder)]
     if not cases:
@@ -66,4 +74,5 @@ def write_main_report(folder: Path, out: Path | None = None) -> Path | None:
     out = Path(out) if out is not None else Path(folder) / REPORT
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
+    plot_overview(cases, out.with_suffix(".png"))
     return out
