@@ -372,7 +372,7 @@ def plot_roc(case: dict[str, Any], path: Path) -> Path:
 def plot_overview(cases: list[dict[str, Any]], path: Path) -> Path:
     """The paper's main-results figure: AUROC and AUPRC of every detector per (task, policy)
     case with 95% intervals, one row per ending; `time_only` and `random` as lines across
-    their case."""
+    their case; `‡` where a case has too few of an outcome to rank."""
     plt = _pyplot()
     names = [f"{c['task']}\n{c['policy']}" for c in cases]
     detectors = check_cases(cases)
@@ -393,6 +393,9 @@ def plot_overview(cases: list[dict[str, Any]], path: Path) -> Path:
                 ax.hlines(
                     y, x - 0.42, x + 0.42, colors="k", linestyles=style, label=f"{ref} (ref.)"
                 )
+            for i, case in enumerate(cases):
+                if not rankable(case, ending):
+                    ax.text(i, 0.5, "‡ fewer than 5\nof an outcome", ha="center", fontsize=7)
             if metric == "auroc":
                 ax.axhline(0.5, color="grey", linestyle=":")
             ax.set_xticks(np.arange(len(names)), names, fontsize=7)
