@@ -87,6 +87,27 @@ def test_timing_record_names_a_missing_evaluation_or_threshold(tmp_path):
         timing_record(write_evaluation(tmp_path / "eval"), alpha=0.2)
 
 
+def test_timing_record_falls_back_to_expert_thresholds_without_policy_successes(tmp_path):
+    """A policy with no success among its calibration rollouts has only `expert@` thresholds:
+    the curves are drawn against those, and the record says so."""
+    folder = write_evaluation(tmp_path / "eval")
+    results = json.loads((folder / "results.json").read_text())
+    for d in DETECTORS:
+        results["detectors"][d]["horizon"]["calibrated"] = {"expert@0.1": {"threshold": 0.25}}
+    missed = {"counts": {"early": 0, "on_time": 0, "late": 0, "missed": 1}, "median_delay": None}
+    results["detectors"]["lstm_ed"]["labelled"]["delays"] = {"expert@0.1": missed}
+    (folder / "results.json").write_text(json.dumps(results))
+    record = timing_record(folder)
+    assert record["calibration"] == "expert@0.1"
+    assert record["thresholds"] == {"probe": 0.25, "lstm_ed": 0.25}
+    assert record["panels"][1]["first_alarm"]["probe"] == 1
+    table = write_result(tmp_path / "out" / "case.json", record)[1].read_text()
+    assert "at the expert@0.1 threshold" in table
+    assert "| lstm_ed | 0.25 | none | none | none | 0 / 0 / 0 / 1 | - |" in table  # all missed
+    with pytest.raises(ValueError, match=r"probe has no expert@0.1 threshold"):
+        timing_record(write_evaluation(tmp_path / "policy_only"), calibration="expert")
+
+
 def test_a_corrupt_or_foreign_record_is_named(tmp_path):
     path = tmp_path / "r.json"
     path.write_text("{not json")

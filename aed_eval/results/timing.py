@@ -11,6 +11,7 @@ does on them.
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,8 @@ import numpy as np
 
 from aed_eval.metrics import first_alarm
 from aed_eval.results import command_line, renderer, save_figure
+
+logger = logging.getLogger(__name__)
 
 PANELS = (
     ("successful rollout", "rollouts", lambda e: e["success"]),
@@ -47,8 +50,8 @@ def timing_record(
     detector's curve (`digits` significant digits) and first alarm; per detector the threshold
     and the detection delays over every labelled failure."""
     results, scored = read_evaluation(folder)
-    key = f"{calibration}@{alpha:g}"
     detectors = list(scored["rollouts"]["scores"])
+    key = _threshold_key(results, detectors, calibration, alpha)
     thresholds, delays = {}, {}
     for d in detectors:
         calibrated = results["detectors"][d][results["ending"]]["calibrated"]
@@ -89,6 +92,35 @@ def timing_record(
     }
 
 
+def _threshold_key(
+    results: dict[str, Any], detectors: list[str], calibration: str, alpha: float
+) -> str:
+    """`<calibration>@<alpha>`; `policy` falls back to `expert` when the policy had no success
+    among its calibration rollouts, so that no detector has a `policy@` threshold."""
+    key = f"{calibration}@{alpha:g}"
+    calibrated = [results["detectors"][d][results["ending"]]["calibrated"] for d in detectors]
+    fallback = f"expert@{alpha:g}"
+    has = lambda k: any(k in c for c in calibrated)  # noqa: E731
+    if calibration == "policy" and not has(key) and has(fallback):
+        logger.info(
+            "%s / %s: no %s threshold (no policy success to calibrate on): %s instead",
+            results["task"],
+            results["policy"],
+            key,
+            fallback,
+        )
+        return fallback
+    return key
+
+
+def _median(delay: dict[str, Any] | None) -> str:
+    """The median delay, `-` when every labelled failure was missed (no delay to take)."""
+    if delay is None:
+        return ""
+    median = delay["median_delay"]
+    return f"{median:g}" if median is not None and np.isfinite(median) else "-"
+
+
 def _alarm(frame: int | None, onset: int | None) -> str:
     if frame is None:
         return "none"
@@ -118,7 +150,7 @@ def render_timing(record: dict[str, Any], stem: Path) -> list[Path]:
         alarms = [_alarm(p["first_alarm"][d], p["episode"].get("onset_frame")) for p in panels]
         delay = record["labelled_delays"].get(d)
         counts = "" if delay is None else " / ".join(str(v) for v in delay["counts"].values())
-        median = "" if delay is None else f"{delay['median_delay']:g}"
+        median = _median(delay)
         lines.append(
             f"| {d} | {record['thresholds'][d]:.4g} | "
             + " | ".join(alarms)
