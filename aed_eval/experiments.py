@@ -74,6 +74,10 @@ READS = {
 """What each main stage reads of the stages before it (of its task: the shared jobs and its own
 case's). A job is done only while what it read is: a retrained policy is rolled out again."""
 
+ADDED_FIELDS = {"precision": "fp32"}
+"""Config fields added after jobs were recorded, at the value every earlier job ran with: left
+out of a job's digest at that value, so that finished jobs keep their digests."""
+
 
 @dataclass
 class ExperimentsConfig:
@@ -177,12 +181,15 @@ class Job:
     def digest(self) -> str:
         """What the job does: its function, every field of its config, the config of the
         model a training builds (its `model_preset()`: the profile's sizes are not fields of
-        the run) and the digests of the jobs whose outputs it reads (`inputs`)."""
+        the run) and the digests of the jobs whose outputs it reads (`inputs`). A field of
+        `ADDED_FIELDS` at its value there is left out."""
         name = getattr(self.fn, "__qualname__", type(self.fn).__qualname__)
-        record: dict[str, Any] = {
-            "fn": f"{self.fn.__module__}.{name}",
-            "config": dataclasses.asdict(self.config),
+        config = {
+            k: v
+            for k, v in dataclasses.asdict(self.config).items()
+            if k not in ADDED_FIELDS or v != ADDED_FIELDS[k]
         }
+        record: dict[str, Any] = {"fn": f"{self.fn.__module__}.{name}", "config": config}
         model_preset = getattr(self.config, "model_preset", None)
         if model_preset is not None:
             record["model"] = dataclasses.asdict(model_preset())

@@ -15,6 +15,8 @@ from typing import Literal
 
 PROFILES = ("mini", "paper", "demo")
 Profile = Literal["mini", "paper", "demo"]
+PRECISIONS = ("fp32", "bf16")
+Precision = Literal["fp32", "bf16"]
 
 # Paper, appendix table "FSI task configurations": epochs per task (policies and detectors).
 PAPER_EPOCHS = {
@@ -151,9 +153,12 @@ class DetectorRecipe(Recipe):
         composition: demonstrations, agent successes and agent failures one iteration draws
             from one environment; a detector trained on successes only draws successes in the
             failures' place.
+        precision: `fp32`, or `bf16`: the forward pass and loss under bfloat16 autocast (the
+            weights, their gradients and the optimiser stay float32; scoring is float32).
     """
 
     composition: tuple[int, int, int]
+    precision: Precision
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -162,3 +167,5 @@ class DetectorRecipe(Recipe):
             raise ValueError(
                 f"composition={self.composition}: (demos >= 1, successes >= 0, failures >= 0)"
             )
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"precision={self.precision!r}: known {list(PRECISIONS)}")

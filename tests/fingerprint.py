@@ -266,6 +266,7 @@ def trained_detectors(root: Path, policy_path: Path) -> dict[str, Any]:
             out=root / name,
             epochs=1,
             progress=False,
+            precision="fp32",  # the recipe of then: mini's visual baselines now train in bf16
         )
         out[name] = tensor_summary(load_detector(train_detector(cfg, config)).state_dict())
     return out

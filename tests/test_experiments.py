@@ -101,6 +101,20 @@ def test_the_digest_follows_every_field_of_the_config():
 
 
 @dataclass
+class WithPrecision(Step):
+    precision: str = "fp32"
+
+
+def test_a_field_added_later_keeps_the_digests_of_the_jobs_that_ran_without_it():
+    """`precision` came after jobs were recorded: at fp32 (what they ran with) a job keeps its
+    digest; at bf16 it is another job."""
+    fn = Recorder()
+    before = Job("T", "stage", fn, Step("a")).digest
+    assert Job("T", "stage", fn, WithPrecision("a")).digest == before
+    assert Job("T", "stage", fn, WithPrecision("a", precision="bf16")).digest != before
+
+
+@dataclass
 class Reads:
     """A stand-in stage config: the policy it reads (None: none) and a value to change."""
 

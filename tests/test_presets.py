@@ -159,3 +159,21 @@ def test_mini_counts_fit_every_catalogue(task, base, train_envs, novel):
     assert parsed("rollout", "--task", task, "--policy", "scan").num_envs == novel
     demo = DemoConfig.from_preset(task, "mini")
     assert demo.calibration_env_indices == tuple(range(train_envs, base))
+
+
+def test_mini_trains_the_visual_baselines_under_bf16_autocast_and_the_rest_in_float32():
+    """bf16 where the from-scratch CNNs cost the time (their losses follow float32's);
+    SVDDED's distances and the feature-based detectors stay float32; `paper` is float32."""
+    mini = {name: DETECTORS.recipe(name, "mini", TASK).precision for name in DETECTORS}
+    assert mini == {
+        "svdd_ed": "fp32",
+        "taskemb_ed": "bf16",
+        "lstm_ed": "bf16",
+        "dct_ed": "bf16",
+        "probe": "fp32",
+        "rnd_oe": "fp32",
+    }
+    assert {DETECTORS.recipe(name, "paper", TASK).precision for name in DETECTORS} == {"fp32"}
+    recipe = dataclasses.asdict(DETECTORS.recipe("lstm_ed", "mini", TASK))
+    with pytest.raises(ValueError, match=r"precision='fp16': known \['fp32', 'bf16'\]"):
+        DetectorRecipe(**{**recipe, "precision": "fp16"})

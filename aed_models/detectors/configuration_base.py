@@ -6,7 +6,14 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, ClassVar, TypeVar
 
-from aed_models.recipe import COMPOSITIONS, DetectorRecipe, check_profile, optimiser, paper_epochs
+from aed_models.recipe import (
+    COMPOSITIONS,
+    DetectorRecipe,
+    Precision,
+    check_profile,
+    optimiser,
+    paper_epochs,
+)
 
 C = TypeVar("C", bound="DetectorConfig")
 
@@ -19,6 +26,7 @@ class DetectorConfig:
     mini_epochs: ClassVar[int] = 30
     mini_max_frames: ClassVar[int] = 0
     mini_composition: ClassVar[tuple[int, int, int]] = (5, 10, 10)
+    mini_precision: ClassVar[Precision] = "fp32"
 
     @classmethod
     def preset(cls: type[C], profile: str) -> C:
@@ -29,8 +37,8 @@ class DetectorConfig:
     @classmethod
     def recipe(cls, profile: str, task: str) -> DetectorRecipe:
         """How a profile trains: `paper` as the paper (the task's epochs, 5 demonstrations + 10
-        successes + 10 failures an iteration, every frame); `mini` the class's `mini_*`; `demo`
-        4 epochs drawing what the demo collects (3 + 4 + 3)."""
+        successes + 10 failures an iteration, every frame, float32); `mini` the class's
+        `mini_*`; `demo` 4 epochs drawing what the demo collects (3 + 4 + 3)."""
         opt = optimiser(profile)
         if profile == "paper":
             return DetectorRecipe(
@@ -39,6 +47,7 @@ class DetectorConfig:
                 weight_decay=opt.weight_decay,
                 max_frames=0,
                 composition=COMPOSITIONS["detector"].drawn(),
+                precision="fp32",
             )
         demo = profile == "demo"
         return DetectorRecipe(
@@ -47,6 +56,7 @@ class DetectorConfig:
             weight_decay=opt.weight_decay,
             max_frames=cls.mini_max_frames,
             composition=(3, 4, 3) if demo else cls.mini_composition,
+            precision=cls.mini_precision,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -80,8 +90,9 @@ class VisualDetectorConfig(DetectorConfig):
     """
 
     # From-scratch encoders on two cores: more, smaller updates (3 + 4 + 4) teach more per CPU
-    # second than the paper's 5 + 10 + 10.
+    # second than the paper's 5 + 10 + 10; their convolutions run under bfloat16 autocast.
     mini_composition: ClassVar[tuple[int, int, int]] = (3, 4, 4)
+    mini_precision: ClassVar[Precision] = "bf16"
 
     arch: str = "small_cnn"
     feature_dim: int = 256

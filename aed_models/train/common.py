@@ -50,9 +50,10 @@ RESUME_FIELDS = (
     "shift",
     "feature_dropout",
     "augment",
+    "precision",
 )
 # A field that checkpoints written before it existed trained without: its value then.
-ABSENT_MEANS = {"feature_dropout": 0.0}
+ABSENT_MEANS = {"feature_dropout": 0.0, "precision": "fp32"}
 
 
 def check_task(episodes: list, task: str, data: Path) -> None:

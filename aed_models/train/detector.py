@@ -49,7 +49,7 @@ logger = logging.getLogger(__name__)
 @dataclass
 class TrainDetectorConfig(TrainingRun, DetectorRecipe):
     """Training of one error detector on one task's base-split collection: the recipe's fields
-    (epochs, lr, weight_decay, max_frames, composition) and what to train. Build it with
+    (epochs, lr, weight_decay, max_frames, composition, precision) and what to train. Build it with
     `from_preset`, which fills the recipe of (detector, profile, task) and the layout's paths.
 
     Args:
@@ -171,6 +171,11 @@ def _features_root(cfg: TrainDetectorConfig) -> Path:
     return Path(cfg.out) / "features"
 
 
+def autocast(precision: str, device: torch.device) -> torch.autocast:
+    """The forward pass's autocast: bfloat16 under `bf16`, off under `fp32`."""
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
+
+
 def prepare(
     batch: dict[str, Any], model_type: type, device: torch.device
 ) -> tuple[dict[str, Any], Any]:
@@ -254,7 +259,8 @@ def train_detector(cfg: TrainDetectorConfig, detector_cfg: Any = None) -> Path:
 
     def update(item: Any) -> tuple[dict[str, float], int]:
         batch, features = prepare(item, model_type, device)
-        loss, parts = detector.loss(batch, features)
+        with autocast(cfg.precision, device):
+            loss, parts = detector.loss(batch, features)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()

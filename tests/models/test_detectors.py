@@ -460,6 +460,7 @@ def tiny_policy(tmp_path_factory):
 
 
 def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
+    from aed_models.train.common import check_same_training
     from aed_models.train.detector import TrainDetectorConfig, train_detector
 
     config = make_detector("lstm_ed", **TINY["lstm_ed"]).config
@@ -493,6 +494,14 @@ def test_train_detector_checkpoints_and_resumes(collection, tmp_path):
     changed = dataclasses.replace(cfg2, epochs=3, lr=1e-3)
     with pytest.raises(ValueError, match="trained with lr=0.0003, this run asks 0.001"):
         train_detector(changed, config)
+    assert cfg2.precision == "bf16"  # mini's LSTMED: bfloat16 autocast
+    with pytest.raises(ValueError, match="trained with precision='bf16', this run asks 'fp32'"):
+        train_detector(dataclasses.replace(cfg2, epochs=3, precision="fp32"), config)
+    # a checkpoint written before the field existed trained in float32: not resumed under bf16
+    then = {"train_config": {"task": "PickPlace"}, "data_key": "k"}
+    check_same_training(tmp_path / "last.pt", then, {"precision": "fp32"}, "k")
+    with pytest.raises(ValueError, match="trained with precision='fp32', this run asks 'bf16'"):
+        check_same_training(tmp_path / "last.pt", then, {"precision": "bf16"}, "k")
     with pytest.raises(ValueError, match="episodes of PickPlace, not of task='PressButton'"):
         train_detector(
             dataclasses.replace(cfg2, task="PressButton", out=tmp_path / "other"), config

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from aed_models.detectors.configuration_base import VisualDetectorConfig, positive
-from aed_models.recipe import check_profile
+from aed_models.recipe import Precision, check_profile
 
 CENTRES = ("aligned", "all")
 
@@ -30,6 +30,7 @@ class SVDDEDConfig(VisualDetectorConfig):
 
     mini_epochs: ClassVar[int] = 50
     mini_max_frames: ClassVar[int] = 8
+    mini_precision: ClassVar[Precision] = "fp32"  # distances to the centres want float32
 
     dropout: float = 0.0
     centre: str = "aligned"
