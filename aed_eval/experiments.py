@@ -283,6 +283,10 @@ class Ledger:
     def done(self, job: Job) -> bool:
         return job.digest in self.jobs
 
+    def seconds(self, job: Job) -> float:
+        """The wall time of the job's last run (0 when not done)."""
+        return float(self.jobs.get(job.digest, {}).get("seconds", 0.0))
+
     def record(self, job: Job, seconds: float) -> None:
         self.jobs[job.digest] = {
             "task": job.task,
@@ -360,19 +364,25 @@ def policy_jobs(jobs: Sequence[Job]) -> list[Job]:
 def status_lines(
     jobs: Sequence[Job], ledger: Ledger, committed: Collection[tuple[str, str]] = ()
 ) -> list[str]:
-    """Per task and stage: jobs done (or not needed: their cases are committed) of planned;
-    then the totals and the committed cases."""
+    """Per task and stage: jobs done (or not needed: their cases are committed) of planned, and
+    the wall time the ledger measured for the done ones; then the totals and the committed
+    cases."""
     pending = {id(j) for j in pending_jobs(jobs, committed)}
-    planned, done = Counter(), Counter()
+    planned, done, seconds = Counter(), Counter(), Counter()
     for job in jobs:
         planned[job.task, job.stage] += 1
         done[job.task, job.stage] += ledger.done(job) or id(job) not in pending
+        seconds[job.task, job.stage] += ledger.seconds(job)
     lines = [
         f"{task:<15} {stage:<24} {done[task, stage]}/{n} done"
+        + (f", {seconds[task, stage] / 60:.0f} min" if seconds[task, stage] else "")
         for (task, stage), n in planned.items()
     ]
     finished = sum(done.values())
-    lines.append(f"{finished} of {len(jobs)} jobs done, {len(jobs) - finished} left")
+    lines.append(
+        f"{finished} of {len(jobs)} jobs done ({sum(seconds.values()) / 3600:.1f} h measured), "
+        f"{len(jobs) - finished} left"
+    )
     cases = case_jobs(jobs)
     if cases:
         names = [f"{t} / {p}" for t, p in cases if (t, p) in committed]

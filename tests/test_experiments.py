@@ -46,7 +46,7 @@ def test_the_main_experiment_plans_every_task_in_the_protocols_order(tmp_path):
         str(j.config.out).startswith(str(tmp_path)) for j in jobs if hasattr(j.config, "out")
     )
     assert status_lines(jobs, Ledger(tmp_path / LEDGER))[-2:] == [
-        f"0 of {len(jobs)} jobs done, {len(jobs)} left",
+        f"0 of {len(jobs)} jobs done (0.0 h measured), {len(jobs)} left",
         "0 of 21 main cases committed",
     ]
 
@@ -86,10 +86,12 @@ def test_a_stopped_run_resumes_where_it_stopped_and_a_changed_job_reruns(tmp_pat
     assert run_jobs(jobs_of(fn, "abcd"), Ledger(path)) == 0
     assert run_jobs(jobs_of(fn, "abcd", b=1), Ledger(path)) == 1  # b's config changed
     assert fn.ran[-1] == "b"
-    lines = status_lines(jobs_of(fn, "abcde"), Ledger(path))
-    assert lines == [
-        "T               stage                    4/5 done",
-        "4 of 5 jobs done, 1 left",
+    ledger = Ledger(path)
+    for entry in ledger.jobs.values():
+        entry["seconds"] = 90.0
+    assert status_lines(jobs_of(fn, "abcde"), ledger) == [
+        "T               stage                    4/5 done, 6 min",  # what the ledger measured
+        "4 of 5 jobs done (0.1 h measured), 1 left",
     ]
 
 
@@ -210,7 +212,7 @@ def test_the_plan_reads_the_ledger_while_a_run_holds_the_folder(tmp_path, caplog
             caplog,
             capsys,
         )
-    assert status == 0 and not errors and "0 of 34 jobs done, 34 left" in out
+    assert status == 0 and not errors and "0 of 34 jobs done (0.0 h measured), 34 left" in out
 
 
 def test_unknown_or_repeated_tasks_are_refused():
