@@ -158,6 +158,45 @@ def time_matched_auroc(
     return weighted / pairs if pairs else float("nan")
 
 
+def success_window_pairs(
+    successes: Sequence[np.ndarray], success_steps: Sequence[int], failures: Sequence[np.ndarray]
+) -> np.ndarray:
+    """W[i, j]: 1 when failed rollout j's maximum over frames 0..k_i is above successful
+    rollout i's (k_i: its first success step), 0.5 on a tie, else 0; its mean is an AUROC.
+
+    Every rollout runs the horizon, but the detectors trained on episodes that end at success;
+    comparing each pair over the frames up to the success leaves out what a success does after
+    it (the paper's ending instead also cuts the failures short, which credits length).
+    """
+    if not len(successes) or not len(failures):
+        raise ValueError("success-window pairs need successful and failed rollouts")
+    if len(success_steps) != len(successes):
+        raise ValueError(f"{len(success_steps)} success steps for {len(successes)} successes")
+    prefix_max = [np.maximum.accumulate(np.asarray(f, dtype=float)) for f in failures]
+    pairs = np.empty((len(successes), len(failures)))
+    for i, (s, k) in enumerate(zip(successes, success_steps, strict=True)):
+        if not 0 <= k < len(s):
+            raise ValueError(f"success {i}: success step {k} outside its {len(s)} frames")
+        own = float(np.max(s[: k + 1]))
+        theirs = np.asarray([m[min(k, len(m) - 1)] for m in prefix_max])
+        pairs[i] = (theirs > own) + 0.5 * (theirs == own)
+    return pairs
+
+
+def pairs_interval(
+    pairs: np.ndarray, num: int = NUM_BOOTSTRAP, seed: int = 0
+) -> tuple[float, float]:
+    """95% interval of a pairwise AUROC (the mean of `pairs`, successes x failures), the
+    successes and the failures resampled each within their own."""
+    rows, cols = pairs.shape
+    return stratified_bootstrap(
+        lambda idx: float(pairs[np.ix_(idx[:rows], idx[rows:] - rows)].mean()),
+        [np.arange(rows), rows + np.arange(cols)],
+        num,
+        seed=seed,
+    )
+
+
 # --- calibrated threshold ------------------------------------------------------------------------
 def conformal_threshold(success_maxima: np.ndarray, alpha: float) -> float:
     """Split-conformal alarm threshold from held-out successful rollouts' maximum scores.

@@ -49,6 +49,7 @@ def renderers() -> dict[str, Renderer]:
         detector_variants,
         embeddings,
         main,
+        success_window,
         tables,
         timing,
     )
