@@ -1,19 +1,22 @@
-"""The experiments read off the main experiment's runs: timing accuracy, the embedding figure
-and the error-correction pilot.
+"""The experiments read off the main experiment's runs: timing accuracy, the success window,
+the embedding figure and the error-correction pilot.
 
 Each is one record per (task, policy) under `results/<profile>/<name>/` (`aed_eval.results`
 renders its table and figure), computed from the main run's evaluations, labelled episodes and
-rollouts. `aed experiments --experiments timing_accuracy embeddings error_correction` runs them
-as jobs after the main stages they read; `scripts/<name>.py` runs one by hand.
+rollouts. `aed experiments --experiments timing_accuracy success_window embeddings
+error_correction` runs them as jobs after the main stages they read; `scripts/<name>.py` runs
+one by hand.
 """
 
 from __future__ import annotations
 
+import logging
 import shlex
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from aed_eval.correction import CorrectionConfig, correction_record
 from aed_eval.embeddings import EmbeddingsConfig, embeddings_record
@@ -21,26 +24,25 @@ from aed_models.layout import RunLayout
 from aed_models.recipe import Profile, check_profile
 from aed_tasks import PAPER_TASK_ORDER
 
+logger = logging.getLogger(__name__)
+
 
 @dataclass
-class TimingConfig:
-    """The timing-accuracy record of one (task, policy) evaluation.
+class CaseConfig:
+    """One (task, policy) evaluation that an experiment reads off the main runs.
 
     Args:
         task: task name.
         policy: the evaluated policy.
-        calibration: which calibrated threshold: `policy` (the policy's own successes) or
-            `expert`.
-        alpha: the threshold's false-alarm rate.
         profile: the profile of the runs.
         runs: runs folder (default runs/<profile>).
-        out: folder of the record (default results/<profile>/timing_accuracy).
+        out: folder of the record (default results/<profile>/<experiment>).
     """
+
+    experiment: ClassVar[str]
 
     task: str = "PressButton"
     policy: str = "scan"
-    calibration: str = "policy"
-    alpha: float = 0.1
     profile: Profile = "mini"
     runs: Path | None = None
     out: Path | None = None
@@ -48,7 +50,39 @@ class TimingConfig:
     def __post_init__(self) -> None:
         check_profile(self.profile)
         self.runs = Path(self.runs) if self.runs is not None else Path("runs") / self.profile
-        self.out = Path(self.out or Path("results") / self.profile / "timing_accuracy")
+        self.out = Path(self.out or Path("results") / self.profile / self.experiment)
+
+
+@dataclass
+class TimingConfig(CaseConfig):
+    """The timing-accuracy record of one (task, policy) evaluation.
+
+    Args:
+        calibration: which calibrated threshold: `policy` (the policy's own successes) or
+            `expert`.
+        alpha: the threshold's false-alarm rate.
+    """
+
+    experiment: ClassVar[str] = "timing_accuracy"
+
+    calibration: str = "policy"
+    alpha: float = 0.1
+
+
+@dataclass
+class SuccessWindowConfig(CaseConfig):
+    """The success-window record of one (task, policy) evaluation (horizon ending)."""
+
+    experiment: ClassVar[str] = "success_window"
+
+
+def success_window_of(cfg: SuccessWindowConfig) -> dict[str, Any]:
+    from aed_eval.results.success_window import success_window_record
+
+    layout = RunLayout(cfg.runs)
+    return success_window_record(
+        layout.evaluation(cfg.task, cfg.policy), layout.rollouts(cfg.task, cfg.policy, "novel")
+    )
 
 
 def timing_accuracy_record(cfg: TimingConfig) -> dict[str, Any]:
@@ -80,6 +114,14 @@ FIGURES = {
             ("naive_dc", "dct", "scan"),
             TimingConfig,
             timing_accuracy_record,
+            ("--tasks", "--policies"),
+        ),
+        Figure(
+            "success_window",
+            PAPER_TASK_ORDER,
+            ("naive_dc", "dct", "scan"),
+            SuccessWindowConfig,
+            success_window_of,
             ("--tasks", "--policies"),
         ),
         Figure(
@@ -135,3 +177,33 @@ def run_figure(job: FigureJob) -> list[Path]:
 
     record = {**FIGURES[job.name].record(job.config), "command": job.command}
     return write_result(Path(job.config.out) / f"{record['task']}_{record['policy']}.json", record)
+
+
+def run_evaluated_cases(
+    name: str,
+    profile: str,
+    runs: Path,
+    tasks: tuple[str, ...],
+    policies: tuple[str, ...],
+    out: Path | None = None,
+    **options: Any,
+) -> list[Path]:
+    """Experiment `name`'s record for every (task, policy) evaluated under `runs`, those not
+    evaluated skipped (what `scripts/<name>.py` runs); `options` go to its config."""
+    layout = RunLayout(runs)
+    written = []
+    for task in tasks:
+        for policy in policies:
+            folder = layout.evaluation(task, policy)
+            if not (folder / "scores.json").is_file():
+                logger.info("%s / %s: not evaluated (%s), skipped", task, policy, folder)
+                continue
+            config = FIGURES[name].config(
+                task=task, policy=policy, profile=profile, runs=runs, out=out, **options
+            )
+            paths = run_figure(FigureJob(name, config, shlex.join(["python", *sys.argv])))
+            logger.info("%s / %s: %s", task, policy, ", ".join(str(p) for p in paths))
+            written += paths
+    if not written:
+        raise SystemExit(f"{runs}: no evaluation of {list(tasks)} x {list(policies)}")
+    return written

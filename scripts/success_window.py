@@ -11,21 +11,14 @@ record per case under `results/<profile>/success_window/` (`aed results` re-rend
 from __future__ import annotations
 
 import logging
-import shlex
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import tyro
 
-from aed_eval.results import write_result
-from aed_eval.results.success_window import success_window_record
-from aed_eval.results.timing import read_evaluation
-from aed_models.layout import RunLayout
+from aed_eval.figures import run_evaluated_cases
 from aed_models.recipe import Profile, check_profile
 from aed_tasks import PAPER_TASK_ORDER
-
-logger = logging.getLogger("success_window")
 
 
 @dataclass
@@ -36,44 +29,18 @@ class Config:
     """Runs folder (default: runs/<profile>, where `aed experiments` writes)."""
     tasks: tuple[str, ...] = PAPER_TASK_ORDER
     policies: tuple[str, ...] = ("naive_dc", "dct", "scan")
-    min_outcomes: int = 5
-    """Cases with fewer successes or failures than this are skipped (too few to rank)."""
     out: Path | None = None
     """Folder of the records (default: results/<profile>/success_window)."""
 
     def __post_init__(self) -> None:
         check_profile(self.profile)
         self.runs = Path(self.runs) if self.runs is not None else Path("runs") / self.profile
-        self.out = Path(self.out or Path("results") / self.profile / "success_window")
 
 
 def main(cfg: Config) -> list[Path]:
-    layout = RunLayout(cfg.runs)
-    written = []
-    for task in cfg.tasks:
-        for policy in cfg.policies:
-            folder = layout.evaluation(task, policy)
-            if not (folder / "scores.json").is_file():
-                logger.info("%s / %s: not evaluated (%s), skipped", task, policy, folder)
-                continue
-            outcomes = [e["success"] for e in read_evaluation(folder)[1]["rollouts"]["episodes"]]
-            if min(sum(outcomes), len(outcomes) - sum(outcomes)) < cfg.min_outcomes:
-                logger.info(
-                    "%s / %s: %d of %d rollouts succeeded: too few of an outcome, skipped",
-                    task,
-                    policy,
-                    sum(outcomes),
-                    len(outcomes),
-                )
-                continue
-            record = success_window_record(folder, layout.rollouts(task, policy, "novel"))
-            record["command"] = shlex.join(["python", *sys.argv])
-            paths = write_result(cfg.out / f"{task}_{policy}.json", record)
-            logger.info("%s / %s: %s", task, policy, ", ".join(str(p) for p in paths))
-            written += paths
-    if not written:
-        raise SystemExit(f"{cfg.runs}: no evaluation of {cfg.tasks} x {cfg.policies} to read")
-    return written
+    return run_evaluated_cases(
+        "success_window", cfg.profile, cfg.runs, cfg.tasks, cfg.policies, cfg.out
+    )
 
 
 if __name__ == "__main__":

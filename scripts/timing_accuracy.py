@@ -11,19 +11,14 @@ results record per case, with its table and figure, under `results/<profile>/tim
 from __future__ import annotations
 
 import logging
-import shlex
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import tyro
 
-from aed_eval.figures import FigureJob, TimingConfig, run_figure
-from aed_models.layout import RunLayout
+from aed_eval.figures import run_evaluated_cases
 from aed_models.recipe import Profile, check_profile
 from aed_tasks import PAPER_TASK_ORDER
-
-logger = logging.getLogger("timing_accuracy")
 
 
 @dataclass
@@ -47,25 +42,16 @@ class Config:
 
 
 def main(cfg: Config) -> list[Path]:
-    layout = RunLayout(cfg.runs)
-    written = []
-    for task in cfg.tasks:
-        for policy in cfg.policies:
-            folder = layout.evaluation(task, policy)
-            if not (folder / "scores.json").is_file():
-                logger.info("%s / %s: not evaluated (%s), skipped", task, policy, folder)
-                continue
-            case = TimingConfig(
-                task, policy, cfg.calibration, cfg.alpha, cfg.profile, cfg.runs, cfg.out
-            )
-            paths = run_figure(
-                FigureJob("timing_accuracy", case, shlex.join(["python", *sys.argv]))
-            )
-            logger.info("%s / %s: %s", task, policy, ", ".join(str(p) for p in paths))
-            written += paths
-    if not written:
-        raise SystemExit(f"{cfg.runs}: no evaluation of {cfg.tasks} x {cfg.policies}")
-    return written
+    return run_evaluated_cases(
+        "timing_accuracy",
+        cfg.profile,
+        cfg.runs,
+        cfg.tasks,
+        cfg.policies,
+        cfg.out,
+        calibration=cfg.calibration,
+        alpha=cfg.alpha,
+    )
 
 
 if __name__ == "__main__":

@@ -337,6 +337,27 @@ def test_timing_accuracy_script_renders_an_evaluation_of_the_pipeline(pipeline, 
 
 
 @pytest.mark.slow
+def test_success_window_script_reads_an_evaluation_and_its_rollouts(pipeline, tmp_path):
+    from aed_eval.results import stale_markdown
+    from aed_eval.results.success_window import success_steps
+    from aed_models.layout import RunLayout
+
+    cfg, _ = pipeline
+    script = load_script("success_window")
+    config = script.Config(profile="demo", runs=cfg.runs, tasks=(TASK,), policies=("naive_dc",))
+    config.out = tmp_path
+    written = script.main(config)
+    record = json.loads(written[0].read_text())
+    assert record["kind"] == "success_window" and record["policy"] == "naive_dc"
+    assert record["successes"] + record["failures"] > 0 and stale_markdown(tmp_path) == []
+    # every scored success has its first success step in the stored rollouts
+    layout = RunLayout(cfg.runs)
+    steps = success_steps(layout.rollouts(TASK, "naive_dc"), "naive_dc", record["policy_sha256"])
+    assert len(steps) == record["successes"]
+    assert all(0 <= k <= 200 for k in steps.values())
+
+
+@pytest.mark.slow
 def test_a_detector_variant_trains_and_evaluates_beside_the_main_run(pipeline, tmp_path):
     from aed_eval.results import stale_markdown, write_result
     from aed_eval.variants import (

@@ -52,6 +52,7 @@ def write_scores(folder: Path) -> Path:
 
 
 def test_the_record_sets_the_window_beside_the_whole_rollouts(tmp_path, monkeypatch):
+    monkeypatch.setattr(window, "too_small", lambda outcomes: False)  # two of each suffice here
     monkeypatch.setattr(window, "success_steps", lambda *_: {(0, 1): 1, (1, 2): 2})
     record = window.success_window_record(write_scores(tmp_path / "eval"), tmp_path, 200)
     probe = record["detectors"]["probe"]
@@ -68,6 +69,7 @@ def test_the_record_sets_the_window_beside_the_whole_rollouts(tmp_path, monkeypa
 
 def test_a_success_without_its_step_or_another_ending_is_named(tmp_path, monkeypatch):
     folder = write_scores(tmp_path / "eval")
+    monkeypatch.setattr(window, "too_small", lambda outcomes: False)
     monkeypatch.setattr(window, "success_steps", lambda *_: {(0, 1): 1})
     with pytest.raises(ValueError, match="no success step for 1 scored successes"):
         window.success_window_record(folder, tmp_path / "rollouts")
@@ -75,3 +77,13 @@ def test_a_success_without_its_step_or_another_ending_is_named(tmp_path, monkeyp
     (folder / "results.json").write_text(json.dumps({**results, "ending": "success"}))
     with pytest.raises(ValueError, match="rollouts end at success, not the horizon"):
         window.success_window_record(folder, tmp_path / "rollouts")
+
+
+def test_a_case_with_too_few_of_an_outcome_is_recorded_as_such(tmp_path, monkeypatch):
+    """Fewer than 5 successes or failures: no AUROC, and the table says why (the main
+    report's rule); the rollouts are not read."""
+    monkeypatch.setattr(window, "success_steps", lambda *_: pytest.fail("rollouts read"))
+    record = window.success_window_record(write_scores(tmp_path / "eval"), tmp_path)
+    assert record["detectors"] == {} and (record["successes"], record["failures"]) == (2, 2)
+    md = write_result(tmp_path / "out" / "PressButton_dct.json", record)[1].read_text()
+    assert "2 successes against 2 failures, fewer than 5 of an outcome: too few to rank" in md

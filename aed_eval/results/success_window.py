@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from aed_eval import metrics
+from aed_eval.evaluate import MIN_PER_OUTCOME, too_small
 from aed_eval.results import command_line, renderer
 from aed_eval.results.timing import read_evaluation
 from aed_eval.rollout import stored_rollouts
@@ -39,10 +40,21 @@ def success_window_record(
     results, scored = read_evaluation(evaluation)
     if results["ending"] != "horizon":
         raise ValueError(f"{evaluation}: rollouts end at {results['ending']}, not the horizon")
-    steps = success_steps(rollouts, results["policy"], results["policy_sha256"])
     episodes = scored["rollouts"]["episodes"]
     success_rows = [i for i, e in enumerate(episodes) if e["success"]]
     failure_rows = [i for i, e in enumerate(episodes) if not e["success"]]
+    record = {
+        "kind": "success_window",
+        "task": results["task"],
+        "policy": results["policy"],
+        "policy_sha256": results["policy_sha256"],
+        "evaluation": str(evaluation),
+        "successes": len(success_rows),
+        "failures": len(failure_rows),
+    }
+    if too_small(record):
+        return {**record, "success_steps": [], "detectors": {}}
+    steps = success_steps(rollouts, results["policy"], results["policy_sha256"])
     missing = [
         episodes[i]
         for i in success_rows
@@ -68,18 +80,7 @@ def success_window_record(
             "window_interval": metrics.pairs_interval(window, bootstrap, seed),
             "max_after_success": float(np.mean(after)),
         }
-    return {
-        "kind": "success_window",
-        "task": results["task"],
-        "policy": results["policy"],
-        "policy_sha256": results["policy_sha256"],
-        "evaluation": str(evaluation),
-        "successes": len(success_rows),
-        "failures": len(failure_rows),
-        "horizon": len(np.asarray(scored["rollouts"]["scores"][next(iter(detectors))][0])) - 1,
-        "success_steps": sorted(k),
-        "detectors": detectors,
-    }
+    return {**record, "success_steps": sorted(k), "detectors": detectors}
 
 
 def _auroc(value: float, interval: list[float]) -> str:
@@ -89,6 +90,14 @@ def _auroc(value: float, interval: list[float]) -> str:
 @renderer("success_window")
 def render_success_window(record: dict[str, Any], stem: Path) -> list[Path]:
     """A Markdown table: per detector the two AUROCs and the share of late maxima."""
+    md = stem.with_suffix(".md")
+    if not record["detectors"]:
+        md.write_text(
+            f"Success window, {record['task']} / {record['policy']}: {record['successes']} "
+            f"successes against {record['failures']} failures, fewer than {MIN_PER_OUTCOME} of an "
+            "outcome: too few to rank.\n" + command_line(record)
+        )
+        return [md]
     steps = record["success_steps"]
     lines = [
         f"Success window, {record['task']} / {record['policy']}: {record['successes']} successes "
@@ -105,6 +114,5 @@ def render_success_window(record: dict[str, Any], stem: Path) -> list[Path]:
             f"| {name} | {_auroc(d['whole_auroc'], d['whole_interval'])} | "
             f"{_auroc(d['window_auroc'], d['window_interval'])} | {d['max_after_success']:.2f} |"
         )
-    md = stem.with_suffix(".md")
     md.write_text("\n".join(lines) + "\n" + command_line(record))
     return [md]
