@@ -394,5 +394,5 @@ def test_a_finished_case_is_committed_and_never_recomputed_on_an_empty_machine(
 
     (results / "main" / "report.md").write_text("edited by hand\n")
     assert stale_markdown(results) == [
-        f"{results / 'main' / 'report.md'}: missing or not what the cases beside it render to"
+        f"{results / 'main' / 'report.md'}: differs from what the cases beside it render to"
     ]

@@ -132,6 +132,17 @@ def test_results_command_rerenders_and_checks(tmp_path, capsys):
     assert f"{md}: missing" in capsys.readouterr().out
     assert aed_main(["results", "--roots", str(tmp_path / "out")]) == 0
     assert md.exists() and aed_main(["results", "--roots", str(tmp_path / "out"), "--check"]) == 0
+    # plots are compared only when asked: their bytes are matplotlib's
+    png = json_path.with_suffix(".png")
+    png.write_bytes(png.read_bytes() + b"\0")
+    assert aed_main(["results", "--roots", str(tmp_path / "out"), "--check"]) == 0
+    capsys.readouterr()
+    check_figures = ["results", "--roots", str(tmp_path / "out"), "--check", "--figures"]
+    assert aed_main(check_figures) == 1
+    assert f"{png}: differs from what {json_path} renders to" in capsys.readouterr().out
+    assert aed_main(["results", "--roots", str(tmp_path / "out")]) == 0
+    assert aed_main(check_figures) == 0
+    assert "every table and plot as rendered" in capsys.readouterr().out
 
 
 def test_policy_table_keeps_the_rows_of_tasks_measured_elsewhere(tmp_path, monkeypatch):

@@ -5,7 +5,8 @@ An experiment's script computes one record, a JSON object whose `kind` names its
 nothing under `results/` is edited by hand. `aed results` re-renders every record under a folder;
 `aed results --check` renders into a scratch folder instead and names every Markdown file that
 differs from the one committed (a table edited by hand, or a renderer changed without
-re-rendering). Plots are rewritten, not compared: their bytes depend on the fonts' rendering.
+re-rendering). Plots are compared only with `--figures`: their bytes depend on matplotlib's
+version and the fonts' rendering, so they are identical on one environment, not across all.
 """
 
 from __future__ import annotations
@@ -102,29 +103,37 @@ def records_under(root: Path) -> list[Path]:
     return found
 
 
-def stale_markdown(root: Path) -> list[str]:
+def stale_markdown(root: Path, figures: bool = False) -> list[str]:
     """Render every record under `root` into a scratch folder; one line for each Markdown file
-    that differs from (or is missing beside) its record."""
+    (and with `figures` each plot, byte for byte) that differs from (or is missing beside) its
+    record."""
     from aed_eval.results.main import REPORT, write_main_report
 
+    compared = (".md", ".png") if figures else (".md",)
     problems = []
     with tempfile.TemporaryDirectory() as scratch:
         for path in records_under(root):
             stem = Path(scratch) / path.relative_to(root).with_suffix("")
             for written in render_record(load_record(path), stem):
-                if written.suffix != ".md":
-                    continue
-                committed = path.parent / written.name
-                if not committed.exists():
-                    problems.append(f"{committed}: missing (render {path})")
-                elif committed.read_text() != written.read_text():
-                    problems.append(f"{committed}: differs from what {path} renders to")
+                if written.suffix in compared:
+                    problems += _differs(
+                        written, path.parent / written.name, f"what {path} renders to"
+                    )
         for folder in main_folders(root):
-            written = write_main_report(folder, Path(scratch) / folder.relative_to(root) / REPORT)
-            committed = folder / REPORT
-            if not committed.exists() or committed.read_text() != written.read_text():
-                problems.append(f"{committed}: missing or not what the cases beside it render to")
+            report = write_main_report(folder, Path(scratch) / folder.relative_to(root) / REPORT)
+            for suffix in compared:
+                written = report.with_suffix(suffix)
+                committed = (folder / REPORT).with_suffix(suffix)
+                problems += _differs(written, committed, "what the cases beside it render to")
     return problems
+
+
+def _differs(written: Path, committed: Path, source: str) -> list[str]:
+    if not committed.exists():
+        return [f"{committed}: missing ({source})"]
+    if committed.read_bytes() != written.read_bytes():
+        return [f"{committed}: differs from {source}"]
+    return []
 
 
 def main_folders(root: Path) -> list[Path]:
@@ -141,10 +150,13 @@ class ResultsConfig:
         roots: folders searched for records (JSON files with a `kind`).
         check: render into a scratch folder and list the Markdown files that differ from the
             committed ones (exit status 1 if any); write nothing.
+        figures: with `check`, compare the plots too, byte for byte (identical on the
+            environment that rendered them; another matplotlib may draw other bytes).
     """
 
     roots: tuple[Path, ...] = (Path("results"),)
     check: bool = False
+    figures: bool = False
 
     def __post_init__(self) -> None:
         missing = [str(r) for r in self.roots if not Path(r).is_dir()]
@@ -155,9 +167,10 @@ class ResultsConfig:
 def results(cfg: Annotated[ResultsConfig, tyro.conf.arg(name="")]) -> int:
     """Regenerate every table and plot under `results/` from the JSON beside it."""
     if cfg.check:
-        problems = [line for root in cfg.roots for line in stale_markdown(root)]
+        problems = [line for root in cfg.roots for line in stale_markdown(root, cfg.figures)]
         count = sum(len(records_under(root)) for root in cfg.roots)
-        print("\n".join(problems) if problems else f"{count} records: every table as rendered")
+        what = "table and plot" if cfg.figures else "table"
+        print("\n".join(problems) if problems else f"{count} records: every {what} as rendered")
         return 1 if problems else 0
     from aed_eval.results.main import write_main_report
 
