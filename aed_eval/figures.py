@@ -179,31 +179,49 @@ def run_figure(job: FigureJob) -> list[Path]:
     return write_result(Path(job.config.out) / f"{record['task']}_{record['policy']}.json", record)
 
 
-def run_evaluated_cases(
-    name: str,
-    profile: str,
-    runs: Path,
-    tasks: tuple[str, ...],
-    policies: tuple[str, ...],
-    out: Path | None = None,
-    **options: Any,
-) -> list[Path]:
-    """Experiment `name`'s record for every (task, policy) evaluated under `runs`, those not
-    evaluated skipped (what `scripts/<name>.py` runs); `options` go to its config."""
-    layout = RunLayout(runs)
+@dataclass
+class CasesConfig:
+    """What `scripts/<experiment>.py` reads: every (task, policy) evaluated under the runs of a
+    profile."""
+
+    profile: Profile = "mini"
+    """The profile whose evaluations are read; results go to results/<profile>/."""
+    runs: Path | None = None
+    """Runs folder (default: runs/<profile>, where `aed experiments` writes)."""
+    tasks: tuple[str, ...] = PAPER_TASK_ORDER
+    policies: tuple[str, ...] = ("naive_dc", "dct", "scan")
+    out: Path | None = None
+    """Folder of the records (default: results/<profile>/<experiment>)."""
+
+    def __post_init__(self) -> None:
+        check_profile(self.profile)
+        self.runs = Path(self.runs) if self.runs is not None else Path("runs") / self.profile
+
+
+def run_evaluated_cases(name: str, cases: CasesConfig, **options: Any) -> list[Path]:
+    """Experiment `name`'s record for every (task, policy) of `cases` evaluated under its runs,
+    those not evaluated skipped; `options` go to the experiment's config."""
+    layout = RunLayout(cases.runs)
     written = []
-    for task in tasks:
-        for policy in policies:
+    for task in cases.tasks:
+        for policy in cases.policies:
             folder = layout.evaluation(task, policy)
             if not (folder / "scores.json").is_file():
                 logger.info("%s / %s: not evaluated (%s), skipped", task, policy, folder)
                 continue
             config = FIGURES[name].config(
-                task=task, policy=policy, profile=profile, runs=runs, out=out, **options
+                task=task,
+                policy=policy,
+                profile=cases.profile,
+                runs=cases.runs,
+                out=cases.out,
+                **options,
             )
             paths = run_figure(FigureJob(name, config, shlex.join(["python", *sys.argv])))
             logger.info("%s / %s: %s", task, policy, ", ".join(str(p) for p in paths))
             written += paths
     if not written:
-        raise SystemExit(f"{runs}: no evaluation of {list(tasks)} x {list(policies)}")
+        raise SystemExit(
+            f"{cases.runs}: no evaluation of {list(cases.tasks)} x {list(cases.policies)}"
+        )
     return written

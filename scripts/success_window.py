@@ -11,36 +11,16 @@ record per case under `results/<profile>/success_window/` (`aed results` re-rend
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 from pathlib import Path
 
 import tyro
 
+from aed_eval.figures import CasesConfig as Config
 from aed_eval.figures import run_evaluated_cases
-from aed_models.recipe import Profile, check_profile
-from aed_tasks import PAPER_TASK_ORDER
-
-
-@dataclass
-class Config:
-    profile: Profile = "mini"
-    """The profile whose evaluations are read; results go to results/<profile>/."""
-    runs: Path | None = None
-    """Runs folder (default: runs/<profile>, where `aed experiments` writes)."""
-    tasks: tuple[str, ...] = PAPER_TASK_ORDER
-    policies: tuple[str, ...] = ("naive_dc", "dct", "scan")
-    out: Path | None = None
-    """Folder of the records (default: results/<profile>/success_window)."""
-
-    def __post_init__(self) -> None:
-        check_profile(self.profile)
-        self.runs = Path(self.runs) if self.runs is not None else Path("runs") / self.profile
 
 
 def main(cfg: Config) -> list[Path]:
-    return run_evaluated_cases(
-        "success_window", cfg.profile, cfg.runs, cfg.tasks, cfg.policies, cfg.out
-    )
+    return run_evaluated_cases("success_window", cfg)
 
 
 if __name__ == "__main__":

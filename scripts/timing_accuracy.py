@@ -16,42 +16,19 @@ from pathlib import Path
 
 import tyro
 
-from aed_eval.figures import run_evaluated_cases
-from aed_models.recipe import Profile, check_profile
-from aed_tasks import PAPER_TASK_ORDER
+from aed_eval.figures import CasesConfig, run_evaluated_cases
 
 
 @dataclass
-class Config:
-    profile: Profile = "mini"
-    """The profile whose evaluations are read; results go to results/<profile>/."""
-    runs: Path | None = None
-    """Runs folder (default: runs/<profile>, where `aed experiments` writes)."""
-    tasks: tuple[str, ...] = PAPER_TASK_ORDER
-    policies: tuple[str, ...] = ("naive_dc", "dct", "scan")
+class Config(CasesConfig):
     calibration: str = "policy"
     """Which calibrated threshold: `policy` (the policy's own successes) or `expert`."""
     alpha: float = 0.1
     """The threshold's false-alarm rate."""
-    out: Path | None = None
-    """Folder of the records (default: results/<profile>/timing_accuracy)."""
-
-    def __post_init__(self) -> None:
-        check_profile(self.profile)
-        self.runs = Path(self.runs) if self.runs is not None else Path("runs") / self.profile
 
 
 def main(cfg: Config) -> list[Path]:
-    return run_evaluated_cases(
-        "timing_accuracy",
-        cfg.profile,
-        cfg.runs,
-        cfg.tasks,
-        cfg.policies,
-        cfg.out,
-        calibration=cfg.calibration,
-        alpha=cfg.alpha,
-    )
+    return run_evaluated_cases("timing_accuracy", cfg, calibration=cfg.calibration, alpha=cfg.alpha)
 
 
 if __name__ == "__main__":

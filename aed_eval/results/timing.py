@@ -97,11 +97,9 @@ def _threshold_key(
 ) -> str:
     """`<calibration>@<alpha>`; `policy` falls back to `expert` when the policy had no success
     among its calibration rollouts, so that no detector has a `policy@` threshold."""
-    key = f"{calibration}@{alpha:g}"
-    calibrated = [results["detectors"][d][results["ending"]]["calibrated"] for d in detectors]
-    fallback = f"expert@{alpha:g}"
-    has = lambda k: any(k in c for c in calibrated)  # noqa: E731
-    if calibration == "policy" and not has(key) and has(fallback):
+    key, fallback = f"{calibration}@{alpha:g}", f"expert@{alpha:g}"
+    known = {k for d in detectors for k in results["detectors"][d][results["ending"]]["calibrated"]}
+    if calibration == "policy" and key not in known and fallback in known:
         logger.info(
             "%s / %s: no %s threshold (no policy success to calibrate on): %s instead",
             results["task"],
