@@ -28,6 +28,7 @@ import hashlib
 import json
 import logging
 import shlex
+import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Collection, Sequence
@@ -504,3 +505,18 @@ def experiments(cfg: Annotated[ExperimentsConfig, tyro.conf.arg(name="")]) -> in
             print(record.read_text())
     print(f"ran {ran} jobs in {(time.perf_counter() - start) / 60:.1f} min; report: {report}")
     return 0
+
+
+def experiment_script(name: str, argv: Sequence[str] | None = None) -> int:
+    """`scripts/<name>.py`: `aed experiments --experiments <name>` with the command's other flags
+    (`--profile`, `--tasks`, `--plan`, ...), so that each experiment has its own entry point."""
+    from aed_eval.cli import main
+    from aed_eval.figures import FIGURES
+    from aed_eval.variants import EXPERIMENTS
+
+    if name not in ("main", *EXPERIMENTS, *FIGURES):
+        raise ValueError(f"experiment {name!r}: known main, {[*EXPERIMENTS, *FIGURES]}")
+    args = list(sys.argv[1:] if argv is None else argv)
+    if any(a == "--experiments" or a.startswith("--experiments=") for a in args):
+        raise SystemExit(f"scripts/{name}.py runs {name}; `aed experiments` runs any others")
+    return main(["experiments", "--experiments", name, *args])

@@ -396,3 +396,22 @@ def test_a_finished_case_is_committed_and_never_recomputed_on_an_empty_machine(
     assert stale_markdown(results) == [
         f"{results / 'main' / 'report.md'}: differs from what the cases beside it render to"
     ]
+
+
+def test_every_experiment_has_its_own_script(tmp_path, capsys):
+    from aed_eval.experiments import experiment_script
+    from aed_eval.figures import FIGURES
+    from aed_eval.variants import EXPERIMENTS
+
+    scripts = {p.stem: p.read_text() for p in (REPO / "scripts").glob("*.py")}
+    for name in ("main", *EXPERIMENTS):
+        assert (
+            f'experiment_script("{name}")' in scripts[{"main": "main_experiment"}.get(name, name)]
+        )
+    assert set(FIGURES) <= set(scripts)
+    assert experiment_script("probe_components", ["--plan", "--runs", str(tmp_path)]) == 0
+    assert "probe_components / + L_pat: train detectors 0/1 done" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="scripts/seeds.py runs seeds"):
+        experiment_script("seeds", ["--experiments", "main"])
+    with pytest.raises(ValueError, match="experiment 'ablation'"):
+        experiment_script("ablation", [])
