@@ -90,7 +90,8 @@ class ExperimentsConfig:
         experiments: main (every task x policy x detector), any of the variant experiments
             of `aed_eval.variants` (rollout_augmentation, probe_components, seeds,
             demo_quality, viewpoint) and of the records read off the main runs,
-            `aed_eval.figures` (timing_accuracy, embeddings, error_correction).
+            `aed_eval.figures` (timing_accuracy, success_window, embeddings,
+            error_correction).
         tasks: the tasks of every experiment, in order (default: each experiment's own: all
             seven, the paper's order, for main; the paper's task for each variant experiment).
         policies: the main experiment's policies, in order (default: the profile's); a case's
