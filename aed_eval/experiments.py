@@ -508,9 +508,10 @@ def experiments(cfg: Annotated[ExperimentsConfig, tyro.conf.arg(name="")]) -> in
     return 0
 
 
-def experiment_script(name: str, argv: Sequence[str] | None = None) -> int:
+def experiment_script(name: str, argv: Sequence[str] | None = None, doc: str = "") -> int:
     """`scripts/<name>.py`: `aed experiments --experiments <name>` with the command's other flags
-    (`--profile`, `--tasks`, `--plan`, ...), so that each experiment has its own entry point."""
+    (`--profile`, `--tasks`, `--plan`, ...), so that each experiment has its own entry point;
+    `--help` shows the script's `doc` above the command's flags."""
     from aed_eval.cli import main
     from aed_eval.figures import FIGURES
     from aed_eval.variants import EXPERIMENTS
@@ -520,4 +521,6 @@ def experiment_script(name: str, argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if any(a == "--experiments" or a.startswith("--experiments=") for a in args):
         raise SystemExit(f"scripts/{name}.py runs {name}; `aed experiments` runs any others")
+    if doc and ("-h" in args or "--help" in args):
+        print(doc)
     return main(["experiments", "--experiments", name, *args])

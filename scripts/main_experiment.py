@@ -19,4 +19,4 @@ import sys
 from aed_eval.experiments import experiment_script
 
 if __name__ == "__main__":
-    sys.exit(experiment_script("main"))
+    sys.exit(experiment_script("main", doc=__doc__))

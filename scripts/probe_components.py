@@ -15,4 +15,4 @@ import sys
 from aed_eval.experiments import experiment_script
 
 if __name__ == "__main__":
-    sys.exit(experiment_script("probe_components"))
+    sys.exit(experiment_script("probe_components", doc=__doc__))

@@ -16,4 +16,4 @@ import sys
 from aed_eval.experiments import experiment_script
 
 if __name__ == "__main__":
-    sys.exit(experiment_script("rollout_augmentation"))
+    sys.exit(experiment_script("rollout_augmentation", doc=__doc__))

@@ -15,4 +15,4 @@ import sys
 from aed_eval.experiments import experiment_script
 
 if __name__ == "__main__":
-    sys.exit(experiment_script("seeds"))
+    sys.exit(experiment_script("seeds", doc=__doc__))

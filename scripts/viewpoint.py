@@ -15,4 +15,4 @@ import sys
 from aed_eval.experiments import experiment_script
 
 if __name__ == "__main__":
-    sys.exit(experiment_script("viewpoint"))
+    sys.exit(experiment_script("viewpoint", doc=__doc__))

@@ -405,12 +405,14 @@ def test_every_experiment_has_its_own_script(tmp_path, capsys):
 
     scripts = {p.stem: p.read_text() for p in (REPO / "scripts").glob("*.py")}
     for name in ("main", *EXPERIMENTS):
-        assert (
-            f'experiment_script("{name}")' in scripts[{"main": "main_experiment"}.get(name, name)]
-        )
+        script = scripts["main_experiment" if name == "main" else name]
+        assert f'experiment_script("{name}", doc=__doc__)' in script
     assert set(FIGURES) <= set(scripts)
     assert experiment_script("probe_components", ["--plan", "--runs", str(tmp_path)]) == 0
     assert "probe_components / + L_pat: train detectors 0/1 done" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        experiment_script("seeds", ["--help"], doc="Stability over five seeds")
+    assert capsys.readouterr().out.startswith("Stability over five seeds")
     with pytest.raises(SystemExit, match="scripts/seeds.py runs seeds"):
         experiment_script("seeds", ["--experiments", "main"])
     with pytest.raises(ValueError, match="experiment 'ablation'"):
