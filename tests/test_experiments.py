@@ -398,7 +398,7 @@ def test_a_finished_case_is_committed_and_never_recomputed_on_an_empty_machine(
     ]
 
 
-def test_every_experiment_has_its_own_script(tmp_path, capsys):
+def test_every_experiment_has_its_own_script(tmp_path, capsys, caplog):
     from aed_eval.experiments import experiment_script
     from aed_eval.figures import FIGURES
     from aed_eval.variants import EXPERIMENTS
@@ -415,5 +415,5 @@ def test_every_experiment_has_its_own_script(tmp_path, capsys):
     assert capsys.readouterr().out.startswith("Stability over five seeds")
     with pytest.raises(SystemExit, match="scripts/seeds.py runs seeds"):
         experiment_script("seeds", ["--experiments", "main"])
-    with pytest.raises(ValueError, match="experiment 'ablation'"):
-        experiment_script("ablation", [])
+    assert experiment_script("ablation", ["--plan", "--runs", str(tmp_path)]) == 2
+    assert "experiments=('ablation',): known" in caplog.text
