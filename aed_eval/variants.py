@@ -12,7 +12,8 @@ detectors) and holds its own (detectors or rollouts, then calibrations and evalu
 stage reads it through the same `RunLayout`, and nothing the main experiment wrote is touched.
 The baseline variant is the main experiment itself (no jobs). Its record
 (`results/<profile>/<experiment>/<task>_<policy>.json`, kind `detector_variants`) puts every
-variant's outcomes and rollout-level AUROC and AUPRC side by side.
+variant's outcomes and rollout-level AUROC and AUPRC side by side, with the time-matched AUROC
+on the labelled novel episodes (which does not depend on how often the policy succeeds).
 """
 
 from __future__ import annotations
@@ -291,12 +292,25 @@ def _cells(results: dict[str, Any], detectors: Sequence[str], ending: str) -> di
     return {d: {k: results["detectors"][d][ending][k] for k in keys} for d in detectors}
 
 
+def _labelled_cells(results: dict[str, Any], detectors: Sequence[str]) -> dict[str, Any]:
+    """Each detector's time-matched AUROC (with interval) on the labelled novel episodes, for
+    the detectors the evaluation scored there."""
+    keys = ("time_matched_auroc", "time_matched_auroc_interval")
+    cells = {}
+    for d in detectors:
+        labelled = results["detectors"][d].get("labelled")
+        if labelled is not None:
+            cells[d] = {k: labelled[k] for k in keys}
+    return cells
+
+
 def variants_record(
     runs: Path, experiment: DetectorExperiment, task: str, policy: str
 ) -> dict[str, Any]:
     """Every variant's rollout-level AUROC and AUPRC (with intervals) of one (task, policy),
     read from the variants' evaluations: under the default ending, and under the paper's, the
-    metric of the paper's numbers (`aed_eval.paper`) the record carries where it gives them."""
+    metric of the paper's numbers (`aed_eval.paper`) the record carries where it gives them;
+    and its time-matched AUROC on the labelled novel episodes, where they were scored."""
     rows = {}
     for variant in experiment.variants:
         path = RunLayout(variant_root(runs, experiment.name, variant)).evaluation(task, policy)
@@ -309,6 +323,9 @@ def variants_record(
         }
         if "success" in results["endings"]:  # the paper's ending: its numbers' metric
             rows[variant.name]["paper_ending"] = _cells(results, experiment.detectors, "success")
+        labelled = _labelled_cells(results, experiment.detectors)
+        if labelled:
+            rows[variant.name]["labelled"] = labelled
     shas = {row["policy_sha256"] for row in rows.values()}
     if len(shas) != 1:
         raise ValueError(f"{experiment.name} {task}/{policy}: variants scored different policies")

@@ -393,6 +393,8 @@ def test_a_detector_variant_trains_and_evaluates_beside_the_main_run(pipeline, t
     assert list(record["variants"]) == ["without RA", "with RA"]
     assert record["paper"] is None  # the paper's RA numbers are a figure
     assert set(record["variants"]["with RA"]["paper_ending"]) == {"probe", "lstm_ed"}
+    for variant in record["variants"].values():  # the labelled episodes, scored by each variant
+        assert set(variant["labelled"]) == {"probe", "lstm_ed"}
     written = write_result(tmp_path / "ra.json", record)
     assert "| probe |" in written[1].read_text() and stale_markdown(tmp_path) == []
 

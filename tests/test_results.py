@@ -222,6 +222,46 @@ def test_a_variant_table_stands_beside_the_papers_numbers_under_both_endings(tmp
     assert stale_markdown(tmp_path) == []
 
 
+def test_a_variant_table_shows_the_labelled_episodes_time_matched_auroc(tmp_path):
+    """Beside the rollout metrics, each variant's time-matched AUROC on the labelled novel
+    episodes; a variant scored without them says n/a and the spread is over those that have it."""
+
+    def labelled(value: float) -> dict:
+        return {"probe": {"time_matched_auroc": value, "time_matched_auroc_interval": [0.1, 0.9]}}
+
+    outcomes = {"successes": 5, "failures": 5}
+    record = {
+        "kind": "detector_variants",
+        "experiment": "seeds",
+        "title": "Stability",
+        "task": "PickPlace",
+        "policy": "scan",
+        "detectors": ["probe"],
+        "spread": True,
+        "variants": {
+            "seed 0": {
+                "outcomes": outcomes,
+                "detectors": variant_cells(0.7),
+                "labelled": labelled(0.8),
+            },
+            "seed 1": {
+                "outcomes": outcomes,
+                "detectors": variant_cells(0.7),
+                "labelled": labelled(0.6),
+            },
+            "seed 2": {"outcomes": outcomes, "detectors": variant_cells(0.7)},
+        },
+        "paper": None,
+    }
+    table = write_result(tmp_path / "seeds.json", record)[1].read_text()
+    assert "| time-matched AUROC [95%] | seed 0 | seed 1 | seed 2 | mean +- std |" in table
+    assert "| probe | 0.800 [0.100, 0.900] | 0.600 [0.100, 0.900] | n/a | 0.700 +- 0.141 |" in table
+    assert "| probe | 0.600 [0.500, 0.700] | 0.600 [0.500, 0.700] | 0.600 [0.500, 0.700] |" in table
+    for variant in record["variants"].values():
+        variant.pop("labelled", None)
+    assert "time-matched" not in write_result(tmp_path / "none.json", record)[1].read_text()
+
+
 def test_the_paper_gives_numbers_only_for_what_it_ran():
     from aed_eval import paper
     from aed_tasks import PAPER_TASK_ORDER

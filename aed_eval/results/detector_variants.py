@@ -1,5 +1,6 @@
 """The ablation tables: every variant's rollout-level AUROC and AUPRC of one (task, policy)
-side by side (`aed_eval.variants`), with their mean and std where the variants are repeats."""
+side by side (`aed_eval.variants`), then its time-matched AUROC on the labelled novel episodes,
+with their mean and std where the variants are repeats."""
 
 from __future__ import annotations
 
@@ -29,24 +30,41 @@ def render_variants(record: dict[str, Any], stem: Path) -> list[Path]:
     )
     lines = [f"{record['title']}: {record['task']} / {record['policy']} ({outcomes}).\n"]
     for metric in ("auroc", "auprc"):
-        extra = " mean +- std |" if record["spread"] else ""
+        lines += _table(record, names, "detectors", metric, f"{metric.upper()} [95%]")
+    if any("labelled" in v for v in record["variants"].values()):
         lines += [
-            f"| {metric.upper()} [95%] | " + " | ".join(names) + f" |{extra}",
-            "|---|" + "---:|" * len(names) + ("---:|" if extra else ""),
+            "On the labelled novel episodes (expert successes and injected failures; the same "
+            "episodes for every variant but a viewpoint's, which sees them through its camera):\n",
+            *_table(record, names, "labelled", "time_matched_auroc", "time-matched AUROC [95%]"),
         ]
-        for d in record["detectors"]:
-            cells = [record["variants"][n]["detectors"][d] for n in names]
-            row = f"| {d} | " + " | ".join(_cell(c, metric) for c in cells) + " |"
-            if record["spread"]:
-                values = np.asarray([c[metric] for c in cells], dtype=float)
-                row += f" {np.nanmean(values):.3f} +- {np.nanstd(values, ddof=1):.3f} |"
-            lines.append(row)
-        lines.append("")
     if record.get("paper"):
         lines += _beside_paper(record, names)
     md = stem.with_suffix(".md")
     md.write_text("\n".join(lines) + command_line(record))
     return [md, _plot(record, names, Path(f"{stem}.png"))]
+
+
+def _table(
+    record: dict[str, Any], names: list[str], view: str, metric: str, title: str
+) -> list[str]:
+    """One metric's table: a row per detector, a column per variant (`n/a` where a variant has
+    no such cell), the mean and std over the variants where they are repeats."""
+    extra = " mean +- std |" if record["spread"] else ""
+    lines = [
+        f"| {title} | " + " | ".join(names) + f" |{extra}",
+        "|---|" + "---:|" * len(names) + ("---:|" if extra else ""),
+    ]
+    for d in record["detectors"]:
+        cells = [record["variants"][n].get(view, {}).get(d) for n in names]
+        row = f"| {d} | " + " | ".join("n/a" if c is None else _cell(c, metric) for c in cells)
+        row += " |"
+        if record["spread"]:
+            values = np.asarray([np.nan if c is None else c[metric] for c in cells], dtype=float)
+            values = values[np.isfinite(values)]
+            spread = np.std(values, ddof=1) if len(values) > 1 else np.nan
+            row += f" {np.mean(values):.3f} +- {spread:.3f} |" if len(values) else " n/a |"
+        lines.append(row)
+    return [*lines, ""]
 
 
 def _beside_paper(record: dict[str, Any], names: list[str]) -> list[str]:
