@@ -296,12 +296,10 @@ def _labelled_cells(results: dict[str, Any], detectors: Sequence[str]) -> dict[s
     """Each detector's time-matched AUROC (with interval) on the labelled novel episodes, for
     the detectors the evaluation scored there."""
     keys = ("time_matched_auroc", "time_matched_auroc_interval")
-    cells = {}
-    for d in detectors:
-        labelled = results["detectors"][d].get("labelled")
-        if labelled is not None:
-            cells[d] = {k: labelled[k] for k in keys}
-    return cells
+    scored = results["detectors"]
+    return {
+        d: {k: scored[d]["labelled"][k] for k in keys} for d in detectors if "labelled" in scored[d]
+    }
 
 
 def variants_record(
